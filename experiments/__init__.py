@@ -1,0 +1,1 @@
+"""plod experiments: the command line, batch experiments and benchmarks."""

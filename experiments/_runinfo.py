@@ -1,0 +1,106 @@
+"""Configs of overrides and the provenance saved next to every report (nanoGPT style).
+
+A config is a short TOML file of overrides on a script's defaults: unknown keys are rejected, so a
+typo can never be silently ignored. Every report folder gets ``run_info.json`` with the resolved
+config, the git SHA, the seed, the command line and the package versions that made it.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+import sys
+import tomllib
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Mapping
+
+from pmetric import atomic_write_text
+
+_PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxopt", "numpy", "scipy", "trimesh",
+             "emcee", "matplotlib", "fast-simplification", "meshoptimizer", "rich")
+
+
+def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str) -> dict:
+    out = dict(defaults)
+    for key, value in overrides.items():
+        if key not in defaults:
+            known = ", ".join(sorted(defaults)) or "(none)"
+            raise ValueError(f"unknown config key {where}{key!r}; known keys: {known}")
+        if isinstance(defaults[key], Mapping):
+            if not isinstance(value, Mapping):
+                raise ValueError(f"config key {where}{key!r} must be a table, got {type(value).__name__}")
+            out[key] = _merge(defaults[key], value, f"{where}{key}.")
+        else:
+            d = defaults[key]
+            ok = (
+                d is None
+                or isinstance(value, type(d))
+                or (isinstance(d, float) and isinstance(value, int) and not isinstance(value, bool))
+                or (isinstance(d, (list, tuple)) and isinstance(value, (list, tuple)))
+            )
+            if not ok:
+                raise ValueError(
+                    f"config key {where}{key!r} must be {type(d).__name__}, got {type(value).__name__} ({value!r})"
+                )
+            out[key] = float(value) if isinstance(d, float) else value
+    return out
+
+
+def load_config(path: str | Path | None, defaults: Mapping[str, Any]) -> dict:
+    """Return ``defaults`` overridden by the TOML file at ``path`` (None: defaults unchanged).
+
+    Raises ``ValueError`` naming the key for unknown keys or wrongly typed values, and for malformed
+    TOML; ``FileNotFoundError`` when the file does not exist.
+    """
+    if path is None:
+        return _merge(defaults, {}, "")
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"config file not found: {p}")
+    try:
+        overrides = tomllib.loads(p.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"malformed TOML in {p}: {exc}") from None
+    return _merge(defaults, overrides, "")
+
+
+def git_sha(cwd: str | Path | None = None) -> str:
+    """The current commit (with ``-dirty`` when the tree has changes), or ``"unknown"``."""
+    cwd = cwd or Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True,
+                             timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=cwd,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha + ("-dirty" if dirty else "")) if sha else "unknown"
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python, the platform and the packages behind a result."""
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    try:
+        import jax
+
+        out["jax_backend"] = jax.default_backend()
+        out["devices"] = ", ".join(str(d) for d in jax.devices())
+    except Exception:  # pragma: no cover - provenance must never fail a report
+        pass
+    return out
+
+
+def save_run_info(out_dir: str | Path, config: Mapping[str, Any], seed: int | None, command: str) -> Path:
+    """Write ``run_info.json`` (resolved config, git SHA, seed, command, versions) into ``out_dir``."""
+    info = {"command": command, "git_sha": git_sha(), "seed": seed, "config": dict(config),
+            "versions": versions()}
+    path = Path(out_dir) / "run_info.json"
+    atomic_write_text(path, json.dumps(info, indent=2, default=str) + "\n")
+    return path
