@@ -27,10 +27,10 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
     for key, value in overrides.items():
         if key not in defaults:
             known = ", ".join(sorted(defaults)) or "(none)"
-            raise ValueError(f"unknown config key {where}{key!r}; known keys: {known}")
+            raise ValueError(f"unknown config key {where + key!r}; known keys: {known}")
         if isinstance(defaults[key], Mapping):
             if not isinstance(value, Mapping):
-                raise ValueError(f"config key {where}{key!r} must be a table, got {type(value).__name__}")
+                raise ValueError(f"config key {where + key!r} must be a table, got {type(value).__name__}")
             out[key] = _merge(defaults[key], value, f"{where}{key}.")
         else:
             d = defaults[key]
@@ -42,7 +42,7 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
             )
             if not ok:
                 raise ValueError(
-                    f"config key {where}{key!r} must be {type(d).__name__}, got {type(value).__name__} ({value!r})"
+                    f"config key {where + key!r} must be {type(d).__name__}, got {type(value).__name__} ({value!r})"
                 )
             out[key] = float(value) if isinstance(d, float) else value
     return out

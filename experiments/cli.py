@@ -14,7 +14,7 @@ import sys
 import warnings
 
 # Subcommand modules, in the order they appear in ``plod --help``.
-COMMANDS = ["demo"]
+COMMANDS = ["demo", "fit", "calibrate", "simplify"]
 
 
 class PlodError(Exception):

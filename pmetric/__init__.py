@@ -11,3 +11,13 @@ retinal velocity ``v`` in deg/s, Michelson contrast ``c`` in [0, 1], luminance i
 
 # Each private module adds its public names below (one import line per module).
 from ._atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from ._base import CSFModel
+from ._csf import Eccentric, KellyAbstract, KellySpatioTemporal, ManosSakrison, RovamoVirsu
+from ._acuity import ReddyAcuity, SmoothReddyAcuity
+from ._inverse import lambertw_m1
+from ._data import CalibrationData
+from ._display import Display, linear_to_srgb, michelson, michelson_range, relative_luminance, srgb_to_linear
+from ._barten import Barten
+from ._stela import StelaCSF
+from ._table import CalibratedCSF
+from ._serialize import load_model, model_from_dict, model_registry, model_to_dict, register_model, save_model

@@ -1,0 +1,142 @@
+"""``plod demo``: the main job on built-in defaults, with no input files.
+
+1. Thresholds: the threshold contrast of every CSF model at a few spatial frequencies for the default
+   display and viewer, the display's highest frequency xi, and the viewing-distance multiple beyond
+   which a 0.5-degree, 10%-contrast change stops being visible.
+2. Simplification: a procedural mesh (no ``../shared`` needed) viewed as in seed 004's study (the
+   object spans about 30 degrees of a 46-degree screen), simplified imperceptibly and to a triangle
+   budget with perceptual and size keys.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+FREQS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)  # cycles/deg
+
+
+def register(sub) -> None:
+    p = sub.add_parser("demo", help="run the main job on built-in defaults (no input files needed)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--subdivisions", type=int, default=6,
+                   help="icosphere subdivisions of the procedural demo mesh (6: 81,920 triangles)")
+    p.add_argument("--budget-fraction", type=float, default=0.1,
+                   help="triangle budget as a fraction of the input (default 0.1)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
+    p.set_defaults(func=run)
+
+
+def _models():
+    import pmetric as pm
+
+    return {
+        "Manos-Sakrison (1974)": pm.ManosSakrison(),
+        "Kelly abstract (delta fitted)": pm.KellyAbstract(),
+        "Kelly spatio-temporal (Reddy)": pm.KellySpatioTemporal(constants="reddy"),
+        "Kelly + Rovamo-Virsu at 10 deg": pm.Eccentric(pm.ManosSakrison(), pm.RovamoVirsu()),
+        "Barten (1999), 100 cd/m2": pm.Barten(),
+        "stelaCSF (2022), 100 cd/m2": pm.StelaCSF(),
+    }
+
+
+def thresholds_table() -> dict:
+    """Thresholds for the default display: ``{model: {"c_T": [...], "peak": f, "k": k}}``."""
+    import jax.numpy as jnp
+
+    f = jnp.asarray(FREQS)
+    out = {}
+    for name, m in _models().items():
+        e = 10.0 if "at 10 deg" in name else 0.0
+        out[name] = {
+            "threshold_contrast": [float(x) for x in m.threshold_contrast(f, e)],
+            "peak_frequency": float(m.peak_frequency(e)),
+            "imperceptible_distance": float(m.imperceptible_distance(0.1, 0.5, e)),
+        }
+    return out
+
+
+def simplification(subdivisions: int, budget_fraction: float) -> dict:
+    """Imperceptible and budget cuts of a procedural bumpy sphere for seed 004's default view."""
+    import optim
+    import pmetric as pm
+
+    vertices, faces, colors = optim.bumpy_sphere(subdivisions, seed=0, colors=True)
+    t0 = time.perf_counter()
+    tree = optim.build_tree(vertices, faces, colors=colors, method="qem")
+    build_ms = 1e3 * (time.perf_counter() - t0)
+    view = optim.View.framing(vertices)
+    model = pm.ManosSakrison()
+    budget = int(budget_fraction * len(faces))
+    rows = {}
+    for label, metric in (("perceptual", "perceptual"), ("size", "size")):
+        keys = optim.score(tree, view, model, metric=metric)
+        cut = optim.budget_cut(tree, keys, budget)
+        rows[f"budget {budget} ({label} keys)"] = cut
+    rows["imperceptible"] = optim.imperceptible_cut(tree, view, model)
+    return {
+        "input_triangles": int(len(faces)),
+        "build_ms": build_ms,
+        "cuts": {k: {"triangles": int(c.triangles), "distance": float(c.distance), "stop_reason": c.stop_reason}
+                 for k, c in rows.items()},
+    }
+
+
+def run(args) -> int:
+    if args.subdivisions < 1 or args.subdivisions > 9:
+        raise ValueError("--subdivisions must be between 1 and 9")
+    if not 0.0 < args.budget_fraction <= 1.0:
+        raise ValueError("--budget-fraction must be in (0, 1]")
+    import pmetric as pm
+
+    display = pm.Display.default()
+    result = {
+        "display": {"field_of_view_deg": [float(x) for x in display.field_of_view],
+                    "xi_cycles_per_deg": float(display.xi), "distance_m": float(display.distance)},
+        "thresholds": thresholds_table(),
+    }
+    try:
+        import optim
+
+        have_optim = all(hasattr(optim, n) for n in ("View", "score", "imperceptible_cut", "bumpy_sphere"))
+    except ImportError:  # pragma: no cover
+        have_optim = False
+    if have_optim:
+        result["simplification"] = simplification(args.subdivisions, args.budget_fraction)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    _print_tables(result)
+    return 0
+
+
+def _print_tables(result: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    d = result["display"]
+    con.print(f"[bold]Default display[/]: {d['field_of_view_deg'][0]:.0f} x {d['field_of_view_deg'][1]:.1f} deg "
+              f"at {d['distance_m']:.2f} m; highest displayable frequency xi = {d['xi_cycles_per_deg']:.1f} cycles/deg")
+    t = Table(title="Threshold contrast (Michelson) by spatial frequency, foveal unless stated")
+    t.add_column("model")
+    for f in FREQS:
+        t.add_column(f"{f:g} c/deg", justify="right")
+    t.add_column("peak c/deg", justify="right")
+    t.add_column("k (0.5 deg, c=0.1)", justify="right")
+    for name, row in result["thresholds"].items():
+        t.add_row(name, *[f"{x:.4f}" for x in row["threshold_contrast"]], f"{row['peak_frequency']:.2f}",
+                  f"{row['imperceptible_distance']:.1f}")
+    con.print(t)
+    con.print("k: the viewing-distance multiple beyond which a 0.5-degree change of contrast 0.1 is invisible.")
+    s = result.get("simplification")
+    if s:
+        t = Table(title=f"Simplifying a procedural mesh of {s['input_triangles']:,} triangles "
+                        f"(hierarchy built in {s['build_ms']:.0f} ms)")
+        for col in ("cut", "triangles", "imperceptible beyond (x distance)", "stop reason"):
+            t.add_column(col, justify="left" if col in ("cut", "stop reason") else "right")
+        for name, c in s["cuts"].items():
+            t.add_row(name, f"{c['triangles']:,}", f"{c['distance']:.2f}", c["stop_reason"])
+        con.print(t)

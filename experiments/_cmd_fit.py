@@ -1,0 +1,148 @@
+"""``plod fit DATA.csv --model NAME``: fit a CSF model's constants to measured thresholds.
+
+Least squares (Levenberg-Marquardt by default; ``--solver`` / ``--backend`` choose others) or emcee
+(``--method mcmc``). ``--out fitted.json`` stores the fitted model (``pmetric.save_model``), which
+``pmetric.load_model`` and ``plod simplify --model fitted.json`` read back. With ``--method mcmc`` the
+stored model is the posterior median, or with ``--conservative Q`` the model whose thresholds sit at
+the lower Q quantile of the posterior predictive (what imperceptible simplification should use).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import warnings
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit",
+        help="fit a CSF model to contrast thresholds (CSV)",
+        description="Fit the constants of a pmetric CSF model to contrast-threshold data (CSV as in "
+                    "../shared/data/csf: s_frequency, log_cone_contrast or sensitivity, optional "
+                    "t_frequency, eccentricity, luminance, area, dataset).",
+    )
+    p.add_argument("data", help="CSV of thresholds")
+    p.add_argument("--model", required=True,
+                   help="model class name (case-insensitive: stelacsf, barten, kellyabstract, manossakrison, "
+                        "kellyspatiotemporal, ...) or a saved model .json to start from")
+    p.add_argument("--method", choices=["lm", "mcmc"], default="lm", help="least squares (lm) or emcee (mcmc)")
+    p.add_argument("--solver", choices=["lm", "gauss-newton", "bfgs"], default="lm",
+                   help="least-squares solver (--method lm)")
+    p.add_argument("--backend", choices=["optimistix", "jaxopt"], default="optimistix")
+    p.add_argument("--multipliers", action="store_true", help="one free sensitivity multiplier per dataset")
+    p.add_argument("--fit", default=None, help="comma-separated fields to fit (default: all)")
+    p.add_argument("--all-rows", action="store_true",
+                   help="fit every row, not only those the model can express (see optim.expressible_rows)")
+    p.add_argument("--nwalkers", type=int, default=32, help="MCMC walkers")
+    p.add_argument("--nsteps", type=int, default=2000, help="MCMC steps per walker")
+    p.add_argument("--seed", type=int, default=0, help="MCMC seed")
+    p.add_argument("--conservative", type=float, default=None, metavar="Q",
+                   help="with --method mcmc: save the model at the lower Q quantile of thresholds (e.g. 0.95)")
+    p.add_argument("--out", default=None, help="write the fitted model here (JSON)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=run)
+
+
+def resolve_model(name: str):
+    """A model instance from a class name (case-insensitive) or a saved ``.json`` model file."""
+    import pmetric
+    from experiments.cli import PlodError
+
+    if name.lower().endswith(".json"):
+        return pmetric.load_model(name)
+    reg = {k.lower(): cls for k, cls in pmetric.model_registry().items()
+           if isinstance(cls, type) and issubclass(cls, pmetric.CSFModel)}
+    key = name.lower().replace("-", "").replace("_", "")
+    if key not in reg:
+        raise PlodError(f"unknown model {name!r}; choose one of {sorted(reg)} or a saved model .json")
+    cls = reg[key]
+    if cls.__name__ == "Eccentric":
+        return cls(pmetric.ManosSakrison())  # the foveal CSF of seed 000, scaled by Rovamo-Virsu M(e)
+    try:
+        return cls()
+    except TypeError as exc:
+        raise PlodError(f"model {cls.__name__} cannot be built with default constants ({exc}); "
+                        "start from a saved model .json") from None
+
+
+def run(args) -> int:
+    import numpy as np
+
+    import optim
+    import pmetric
+    from experiments.cli import PlodError
+
+    if args.conservative is not None and not 0 < args.conservative < 1:
+        raise PlodError(f"--conservative must be in (0, 1), got {args.conservative}")
+    if args.conservative is not None and args.method != "mcmc":
+        raise PlodError("--conservative needs --method mcmc")
+    data_path = Path(args.data)
+    if args.out is not None:
+        out = Path(args.out)
+        if data_path.exists() and out.exists() and os.path.samefile(out, data_path):
+            raise PlodError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
+        if out.is_dir():
+            raise PlodError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
+    data = pmetric.CalibrationData.from_csv(data_path)
+    model = resolve_model(args.model)
+    fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None
+    rows = None if args.all_rows else "auto"
+    report: dict = {"model": type(model).__name__, "data": str(data_path), "method": args.method}
+    if args.method == "lm":
+        res = optim.fit_least_squares(model, data, solver=args.solver, backend=args.backend,
+                                      multipliers=args.multipliers, fit=fit, rows=rows)
+        fitted = res.model
+        report.update(
+            solver=res.solver, backend=res.backend, result=res.result, steps=res.steps, n_rows=res.n_rows,
+            row_rules=res.row_rules, rmse_db=res.rmse_db, rmse_log10=res.rmse_log10,
+            rmse_per_dataset_db=res.rmse_per_dataset, multipliers=res.multipliers,
+            params={n: {"value": float(v), "stderr": float(s)}
+                    for n, v, s in zip(res.param_names, res.values, res.stderr)},
+        )
+        text = res.summary()
+    else:
+        from optim._mcmc import ChainTooShortWarning, conservative, fit_mcmc
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ChainTooShortWarning)
+            post = fit_mcmc(model, data, nwalkers=args.nwalkers, nsteps=args.nsteps, seed=args.seed,
+                            multipliers=args.multipliers, fit=fit, rows=rows, progress=not args.json)
+        fitted = post.model() if args.conservative is None else conservative(post, args.conservative)
+        lo, hi = post.interval(0.95)
+        report.update(
+            nwalkers=post.nwalkers, nsteps=post.nsteps, burn=post.burn,
+            acceptance_fraction=post.acceptance_fraction, tau_max=float(np.max(post.tau)),
+            converged=post.converged, warning=post.warning, sigma_log10=float(np.median(post.sigma)),
+            rmse_db=post.lsq.rmse_db, n_rows=post.lsq.n_rows, row_rules=post.lsq.row_rules,
+            conservative_q=args.conservative,
+            params={n: {"median": float(m), "lo95": float(a), "hi95": float(b)}
+                    for n, m, a, b in zip(post.param_names, post.median(), lo, hi)},
+        )
+        text = post.summary() + ("" if post.warning is None else f"\nwarning: {post.warning}")
+    if args.out is not None:
+        pmetric.save_model(fitted, args.out)
+        report["out"] = str(args.out)
+        text += f"\nwrote {args.out}"
+    if args.json:
+        print(json.dumps(report, indent=1, default=_jsonable))
+    else:
+        print(text)
+    return 0
+
+
+def _jsonable(x):
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    return v if math.isfinite(v) else None
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from experiments.cli import main
+
+    sys.exit(main(["fit", *sys.argv[1:]]))

@@ -1,0 +1,285 @@
+"""``plod simplify``: simplify one mesh for one view, to a triangle budget or imperceptibly.
+
+Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (built once and cached
+by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``) -> view (default: the object subtends about
+30 deg of a 46 deg screen, seed 004's study) -> per-node keys (``optim.score``) -> cut
+(``optim.budget_cut`` or ``optim.imperceptible_cut``) -> ``optim.extract`` -> write ``--out``
+atomically (never over the input).
+
+Units: ``--fov`` and ``--screen-deg`` deg, ``--distance-m`` m, ``--gaze`` pixels of the image (x right,
+y down, origin top-left), ``--gaze-error`` deg. Perceptual keys are viewing-distance multiples (seed
+004 section 5.3); size and geometric keys are pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_MODEL = "KellyAbstract"
+DEFAULT_OBJECT_DEG = 30.0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "simplify",
+        help="simplify a mesh for one view: to a triangle budget or imperceptibly",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("mesh", help="input mesh (PLY, OBJ, OFF, STL, GLB)")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--budget", type=str, default=None, metavar="N", help="keep at most N triangles")
+    mode.add_argument("--imperceptible", action="store_true",
+                      help="fold every node whose fold is imperceptible from this view")
+    p.add_argument("--metric", choices=("perceptual", "size", "geometric"), default="perceptual",
+                   help="fold priority for --budget (default perceptual: imperceptible distance)")
+    p.add_argument("--eye", metavar="X,Y,Z", help="camera position (object units); default: framed at 30 deg")
+    p.add_argument("--target", metavar="X,Y,Z", help="point looked at (default: the mesh's bounding-box centre)")
+    p.add_argument("--up", metavar="X,Y,Z", default=None, help="camera up vector (default 0,1,0)")
+    p.add_argument("--fov", metavar="DEG", default=None,
+                   help="vertical field of view of the camera, deg (default: what the screen subtends)")
+    p.add_argument("--screen-deg", metavar="DEG", default=None,
+                   help="horizontal angle the screen subtends at the viewer, deg (default 46)")
+    p.add_argument("--distance-m", metavar="M", default=None, help="viewing distance, m (default 0.63)")
+    p.add_argument("--gaze", metavar="U,V", action="append", default=None,
+                   help="gaze point in image pixels; repeat for several viewers (default: screen centre)")
+    p.add_argument("--no-gaze", action="store_true", help="no gaze information: treat every node as foveal")
+    p.add_argument("--gaze-error", metavar="DEG", default="1.0",
+                   help="gaze uncertainty, deg (1 for an eye tracker, 15 for head tracking; default 1)")
+    p.add_argument("--model", default=DEFAULT_MODEL, metavar="NAME|FILE.json",
+                   help=f"pmetric model name or a fitted model JSON file (default {DEFAULT_MODEL})")
+    p.add_argument("--method", choices=("qem", "octree"), default="qem", help="vertex tree builder (default qem)")
+    p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
+    p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=run)
+
+
+# ----------------------------------------------------------------------------------------------- parsing
+def _error(msg: str):
+    from experiments.cli import PlodError
+
+    return PlodError(msg)
+
+
+def _vector(flag: str, text: str | None, n: int):
+    if text is None:
+        return None
+    parts = [s.strip() for s in str(text).split(",")]
+    words = {2: "two", 3: "three"}[n]
+    try:
+        vals = [float(s) for s in parts]
+    except ValueError:
+        vals = []
+    if len(vals) != n:
+        raise _error(f"{flag} needs {words} comma-separated numbers, got {text!r}")
+    if not all(math.isfinite(x) for x in vals):
+        raise _error(f"{flag} needs finite numbers, got {text!r}")
+    return np.asarray(vals, dtype=np.float64)
+
+
+def _number(flag: str, text, *, lo: float = 0.0, hi: float | None = None, strict: bool = True) -> float | None:
+    if text is None:
+        return None
+    try:
+        x = float(text)
+    except (TypeError, ValueError):
+        raise _error(f"{flag} needs a number, got {text!r}") from None
+    bad = not math.isfinite(x) or (x <= lo if strict else x < lo) or (hi is not None and x >= hi)
+    if bad:
+        rng = f"{'>' if strict else '>='} {lo:g}" + (f" and < {hi:g}" if hi is not None else "")
+        raise _error(f"{flag} must be a finite number {rng}, got {text!r}")
+    return x
+
+
+def _budget(text) -> int:
+    try:
+        n = int(str(text).replace("_", ""))
+    except ValueError:
+        raise _error(f"--budget needs a whole number of triangles, got {text!r}") from None
+    if n < 0:
+        raise _error(f"--budget must be >= 0, got {text!r}")
+    return n
+
+
+def load_model_arg(text: str):
+    """A pmetric model from a registered class name (default constants) or a JSON file (``pmetric.load_model``)."""
+    import pmetric
+
+    p = Path(text)
+    if text.lower().endswith(".json") or p.is_file():
+        if not p.is_file():
+            raise _error(f"--model: file not found: {text!r}")
+        return pmetric.load_model(p)
+    registry = {k: v for k, v in pmetric.model_registry().items()
+                if isinstance(v, type) and issubclass(v, pmetric.CSFModel)}
+    cls = registry.get(text)
+    if cls is None:
+        raise _error(f"--model: unknown model {text!r}; choose one of {', '.join(sorted(registry))} or a .json file")
+    try:
+        return cls()
+    except TypeError as exc:
+        raise _error(f"--model: {text} cannot be built with default constants ({exc}); pass a fitted .json") from None
+
+
+def _display(screen_deg, distance_m):
+    import pmetric
+
+    d = pmetric.Display.default()
+    if screen_deg is None and distance_m is None:
+        return d
+    dist = float(d.distance) if distance_m is None else distance_m
+    if screen_deg is None:
+        return d.with_distance(dist)
+    width = 2 * dist * math.tan(math.radians(screen_deg) / 2)
+    rx, ry = d.resolution
+    return pmetric.Display(width, width * ry / rx, (rx, ry), dist, peak_luminance=float(d.peak_luminance),
+                           black_level=float(d.black_level))
+
+
+def cache_dir() -> Path:
+    """``$PLOD_CACHE`` or ``~/.cache/plod``."""
+    env = os.environ.get("PLOD_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "plod"
+
+
+def tree_for(vertices, faces, colors, method: str, *, use_cache: bool = True, progress: bool = False):
+    """(tree, "hit" | "miss" | "off"): the vertex tree of a mesh, from the cache when possible."""
+    import optim
+
+    if not use_cache:
+        return optim.build_tree(vertices, faces, colors, method=method, progress=progress), "off"
+    path = cache_dir() / f"{optim.mesh_hash(vertices, faces, colors, method=method)}.npz"
+    if path.is_file():
+        try:
+            return optim.load_tree(path), "hit"
+        except (ValueError, OSError, KeyError):
+            pass  # unreadable or stale cache entry: rebuild and overwrite it
+    tree = optim.build_tree(vertices, faces, colors, method=method, progress=progress)
+    try:
+        tree.save(path)
+    except OSError:
+        pass  # a read-only cache never stops the command
+    return tree, "miss"
+
+
+def build_view(vertices, args):
+    """The ``optim.View`` described by the flags (see the module docstring)."""
+    import optim
+
+    eye = _vector("--eye", args.eye, 3)
+    target = _vector("--target", args.target, 3)
+    up = _vector("--up", args.up, 3)
+    fov = _number("--fov", args.fov, hi=180.0)
+    screen = _number("--screen-deg", args.screen_deg, hi=180.0)
+    dist = _number("--distance-m", args.distance_m)
+    gaze_err = _number("--gaze-error", args.gaze_error, strict=False)
+    if args.no_gaze and args.gaze:
+        raise _error("--gaze and --no-gaze cannot be combined")
+    gaze = None if args.no_gaze else "center"
+    if args.gaze:
+        gaze = np.stack([_vector("--gaze", g, 2) for g in args.gaze])
+    if target is not None and eye is None:
+        raise _error("--target needs --eye")
+    kw = dict(display=_display(screen, dist), gaze=gaze, gaze_error_deg=gaze_err, fov_deg=fov)
+    if up is not None:
+        kw["up"] = up
+    if eye is None:
+        return optim.View.framing(vertices, DEFAULT_OBJECT_DEG, **kw)
+    if target is None:
+        target = 0.5 * (vertices.min(0) + vertices.max(0))
+    return optim.View(eye=eye, target=target, **kw)
+
+
+# ----------------------------------------------------------------------------------------------- run
+def simplify(args) -> dict:
+    """Run the command; returns the result dictionary printed by ``--json``."""
+    import optim
+
+    mesh_path = Path(args.mesh)
+    budget = _budget(args.budget) if args.budget is not None else None
+    if args.imperceptible and args.metric != "perceptual":
+        raise _error("--imperceptible needs --metric perceptual (keys in viewing-distance multiples)")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        if out.suffix.lower() not in (".ply", ".obj", ".off", ".stl", ".glb"):
+            raise _error(f"--out: cannot write {out.suffix or 'a file without suffix'!r}; use .ply, .obj, .off, .stl or .glb")
+        if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
+            raise _error(f"--out {str(out)!r} is the input mesh; choose another output path")
+    model = load_model_arg(args.model) if args.metric == "perceptual" else None
+
+    t = {}
+    t0 = time.perf_counter()
+    vertices, faces, colors = optim.load_mesh(mesh_path)
+    t["load"] = time.perf_counter() - t0
+    view = build_view(vertices, args)
+    t0 = time.perf_counter()
+    tree, cache = tree_for(vertices, faces, colors, args.method, use_cache=not args.no_cache,
+                           progress=not args.json)
+    t["build"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    keys = optim.score(tree, view, model, args.metric)
+    t["score"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if args.imperceptible:
+        from optim._cut import threshold_cut
+
+        cut = threshold_cut(tree, keys, 1.0, monotone="trust")
+    else:
+        cut = optim.budget_cut(tree, keys, budget, monotone="trust")
+    t["cut"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    v2, f2, c2 = optim.extract(tree, cut)
+    t["extract"] = time.perf_counter() - t0
+    if out is not None:
+        t0 = time.perf_counter()
+        optim.save_mesh(out, v2, f2, c2, protect=(mesh_path,))
+        t["save"] = time.perf_counter() - t0
+    perceptual = args.metric == "perceptual"
+    return {
+        "mesh": str(mesh_path),
+        "input_triangles": int(tree.n_triangles),
+        "output_triangles": int(f2.shape[0]),
+        "output_vertices": int(v2.shape[0]),
+        "metric": args.metric,
+        "model": type(model).__name__ if model is not None else None,
+        "budget": budget,
+        "imperceptible_distance": float(cut.distance) if perceptual else None,
+        "boundary_key": float(cut.distance),
+        "boundary_key_units": "viewing-distance multiple" if perceptual else "pixels",
+        "stop_reason": cut.stop_reason,
+        "tree_method": args.method,
+        "tree_cache": cache,
+        "out": str(out) if out is not None else None,
+        "timings_ms": {k: round(v * 1e3, 3) for k, v in t.items()},
+    }
+
+
+def run(args) -> int:
+    res = simplify(args)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"plod simplify {res['mesh']}", show_header=False)
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    table.add_row("triangles", f"{res['input_triangles']:,} -> {res['output_triangles']:,}")
+    table.add_row("metric / stop", f"{res['metric']} / {res['stop_reason']}")
+    if res["imperceptible_distance"] is not None:
+        table.add_row("imperceptible beyond", f"{res['imperceptible_distance']:.3g} x the viewing distance")
+    else:
+        table.add_row("boundary key", f"{res['boundary_key']:.3g} px")
+    table.add_row("tree", f"{res['tree_method']} (cache {res['tree_cache']})")
+    table.add_row("time (ms)", ", ".join(f"{k} {v:.1f}" for k, v in res["timings_ms"].items()))
+    if res["out"]:
+        table.add_row("written", res["out"])
+    Console().print(table)
+    return 0

@@ -1,0 +1,179 @@
+"""Benchmark: vertex-tree build, budget cut and extraction (engineer C's speed targets).
+
+    .venv/bin/python -m experiments.bench_tree                 # 796k-triangle mesh from ../shared
+    .venv/bin/python -m experiments.bench_tree --quick         # small procedural mesh, seconds
+    .venv/bin/python -m experiments.bench_tree --mesh M.ply --out reports/bench_tree.md
+
+Measures, in one run (so ratios are comparable on a noisy machine):
+
+* build throughput (input triangles/s) of ``build_tree(method="octree" | "qem")`` beside
+  fast-simplification decimating the same mesh (to 10 % and to its full collapse sequence);
+  tree memory in bytes per input triangle (target <= 200; octree target >= 0.3 M triangles/s);
+* ``budget_cut`` vs ``budget_cut_heap`` on a tree of >= 10^6 nodes: identical cuts, speed ratio
+  (target >= 30x);
+* per-view ``budget_cut`` + ``extract`` (ms) on the big mesh (target about 25 ms of the 50 ms update).
+
+Writes the Markdown report itself (atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BIG = ROOT.parent / "shared" / "data" / "meshes" / "turbineblade-subdiv-796k.ply"
+
+
+def _best(fn, repeat):
+    ts, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        ts.append(time.perf_counter() - t0)
+    return min(ts), out
+
+
+def _view_keys(tree, rng):
+    """Plausible per-view keys: angular size of each node's sphere from a random viewpoint, made monotone."""
+    import optim
+
+    eye = tree.center[0] + rng.normal(size=3) * 3 * tree.radius[0]
+    dist = np.linalg.norm(tree.center - eye, axis=1)
+    k = tree.radius / np.maximum(dist, 1e-9) * (1 + tree.fold_delta)
+    return optim.repair_monotone(tree, k)
+
+
+def main(argv=None) -> int:
+    import fast_simplification
+    from rich.console import Console
+
+    import optim
+    from pmetric import atomic_write_text
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--mesh", default=None, help="mesh file (default: the 796k-triangle turbine blade)")
+    ap.add_argument("--quick", action="store_true", help="small procedural mesh (bumpy sphere, 20k triangles)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", default=str(ROOT / "reports" / "bench_tree.md"))
+    args = ap.parse_args(argv)
+    con = Console()
+    rng = np.random.default_rng(0)
+
+    if args.quick:
+        v, f = optim.bumpy_sphere(5, seed=0)
+        name = "bumpy_sphere(5)"
+    elif args.mesh or BIG.exists():
+        path = Path(args.mesh) if args.mesh else BIG
+        v, f, _ = optim.load_mesh(path)
+        name = path.name
+    else:
+        v, f = optim.bumpy_sphere(7, seed=0)
+        name = "bumpy_sphere(7)"
+    T = f.shape[0]
+    con.print(f"mesh {name}: {T:,} triangles, {v.shape[0]:,} vertices")
+    rows = []
+
+    # ---- build -------------------------------------------------------------------------------
+    reps = 1 if T > 200_000 else args.repeat
+    trees = {}
+    for method in ("octree", "qem"):
+        dt, tree = _best(lambda: optim.build_tree(v, f, method=method), reps)
+        trees[method] = tree
+        rows.append((f"build_tree({method})", dt, T / dt, tree.nbytes / T, tree.n_nodes))
+        con.print(f"  build {method}: {dt:.2f} s, {T / dt / 1e6:.3f} M tri/s, {tree.nbytes / T:.0f} B/tri, "
+                  f"{tree.n_nodes:,} nodes, depth {int(tree.depth.max())}")
+    f32 = np.ascontiguousarray(f, dtype=np.int32)
+    dt, _ = _best(lambda: fast_simplification.simplify(v, f32, target_reduction=0.9), reps)
+    rows.append(("fast_simplification 10 %", dt, T / dt, float("nan"), 0))
+    dt0, _ = _best(lambda: fast_simplification.simplify(v, f32, target_count=0, return_collapses=True), reps)
+    rows.append(("fast_simplification to 0 (collapse sequence)", dt0, T / dt0, float("nan"), 0))
+    con.print(f"  fast_simplification: 10 % {dt:.2f} s, full sequence {dt0:.2f} s")
+
+    # ---- budget cut vs heap on >= 1e6 nodes ------------------------------------------------------
+    big = trees["qem"]
+    if big.n_nodes < 1_000_000 and not args.quick:
+        vb, fb = optim.bumpy_sphere(8, seed=1)
+        big = optim.build_tree(vb, fb, method="octree")
+        if big.n_nodes < 1_000_000:
+            big = optim.build_tree(vb, fb, method="qem")
+    keys_sets = {"random monotone": optim.repair_monotone(big, rng.random(big.n_nodes)),
+                 "view-like": _view_keys(big, rng)}
+    cut_rows = []
+    for kname, keys in keys_sets.items():
+        for frac in (0.1, 0.5):
+            budget = int(frac * big.n_triangles)
+            tf, cf = _best(lambda: optim.budget_cut(big, keys, budget), args.repeat)
+            th, ch = _best(lambda: optim.budget_cut_heap(big, keys, budget), 1)
+            same = bool(np.array_equal(cf.unfolded, ch.unfolded) and cf.triangles == ch.triangles)
+            cut_rows.append((kname, budget, tf, th, th / tf, same))
+            con.print(f"  cut {kname} budget {budget:,}: fast {tf * 1e3:.1f} ms, heap {th * 1e3:.0f} ms, "
+                      f"x{th / tf:.0f}, identical={same}")
+
+    # ---- per-view cut + extract on the build mesh ---------------------------------------------------
+    view_rows = []
+    for method, tree in trees.items():
+        keys = _view_keys(tree, rng)
+        for frac in (0.1, 0.5):
+            budget = int(frac * T)
+            tc, cut = _best(lambda: optim.budget_cut(tree, keys, budget), args.repeat)
+            tt, _ = _best(lambda: optim.budget_cut(tree, keys, budget, monotone="trust"), args.repeat)
+            te, mesh = _best(lambda: optim.extract(tree, cut), args.repeat)
+            view_rows.append((method, budget, tc, tt, te, mesh[1].shape[0]))
+            con.print(f"  view {method} budget {budget:,}: cut {tc * 1e3:.1f} ms (trust {tt * 1e3:.1f}), "
+                      f"extract {te * 1e3:.1f} ms")
+
+    # ---- report ----------------------------------------------------------------------------------
+    octree_rate = rows[0][2]
+    lines = [
+        "# bench_tree: vertex-tree build, budget cut, extraction",
+        "",
+        f"Command: `.venv/bin/python -m experiments.bench_tree{' --quick' if args.quick else ''}`  ",
+        f"Machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
+        f"numpy {np.__version__}; best of {args.repeat} (builds of > 200k triangles: 1 run).",
+        "",
+        f"## Build ({name}: {T:,} triangles, {v.shape[0]:,} vertices)",
+        "",
+        "| what | seconds | input M tri/s | bytes / input triangle | nodes |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    for what, dt, rate, bpt, nn in rows:
+        lines.append(f"| {what} | {dt:.3f} | {rate / 1e6:.3f} | {'' if np.isnan(bpt) else f'{bpt:.0f}'} | "
+                     f"{nn:,} |" if nn else f"| {what} | {dt:.3f} | {rate / 1e6:.3f} | | |")
+    lines += [
+        "",
+        f"Targets: octree >= 0.3 M tri/s (measured {octree_rate / 1e6:.2f}); memory <= 200 B per input triangle. "
+        f"Ratio octree build / fast-simplification full collapse sequence: {rows[0][1] / dt0:.2f}; "
+        f"qem build / same: {rows[1][1] / dt0:.2f}.",
+        "",
+        f"## budget_cut vs budget_cut_heap ({big.n_nodes:,} nodes, {big.n_triangles:,} triangles, {big.method})",
+        "",
+        "| keys | budget | budget_cut ms | heap ms | speed-up | identical cut |",
+        "| --- | ---: | ---: | ---: | ---: | --- |",
+    ]
+    for kname, budget, tf, th, ratio, same in cut_rows:
+        lines.append(f"| {kname} | {budget:,} | {tf * 1e3:.1f} | {th * 1e3:.0f} | {ratio:.0f}x | {same} |")
+    lines += [
+        "",
+        "Target: identical cuts, >= 30x faster.",
+        "",
+        f"## Per-view budget_cut + extract ({name})",
+        "",
+        "| tree | budget | budget_cut ms (checked) | budget_cut ms (monotone='trust') | extract ms | cut+extract ms |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for method, budget, tc, tt, te, nt in view_rows:
+        lines.append(f"| {method} | {budget:,} | {tc * 1e3:.1f} | {tt * 1e3:.1f} | {te * 1e3:.1f} | "
+                     f"{(tc + te) * 1e3:.1f} |")
+    lines += ["", "Target: about 25 ms for budget cut + extract on the 796k-triangle mesh.", ""]
+    out = atomic_write_text(args.out, "\n".join(lines))
+    con.print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,393 @@
+"""Bayesian fitting of CSF constants with emcee, and the conservative model for imperceptible LOD.
+
+Likelihood: the residuals of ``optim._fit`` (log10 sensitivity, model - data, optional per-dataset
+multipliers) are independent Gaussians of standard deviation ``sigma`` (log10 units; free, with a prior
+flat in ln sigma on [1e-4, 10], unless given). Parameters are sampled in the unconstrained coordinates
+of ``optim._fit`` (log / logit by ``param_bounds``); priors are densities of the *natural* values, so
+the log-Jacobian of the reparametrisation is added. The ensemble sampler is the affine-invariant
+stretch move of Goodman & Weare (2010) as implemented by emcee (Foreman-Mackey et al. 2013, PASP 125:306)
+with a jitted, vmapped log-probability (``vectorize=True``: one call per half-ensemble).
+
+Convergence: the integrated autocorrelation time tau of every parameter (emcee's estimator, Sokal 1997)
+must satisfy ``nsteps >= 50 tau``; otherwise a ``ChainTooShortWarning`` is issued and
+``Posterior.converged`` is False.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from typing import Any, Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._fit import (
+    _device_args,
+    _from_u,
+    _param_names,
+    _Problem,
+    _residuals,
+    fit_least_squares,
+)
+
+__all__ = ["ChainTooShortWarning", "LogUniform", "Normal", "Posterior", "Uniform", "conservative", "fit_mcmc"]
+
+_SIGMA_RANGE = (1e-4, 10.0)  # prior range of the noise s.d., log10 units
+_AUTOCORR_FACTOR = 50  # emcee's recommendation: nsteps >= 50 tau
+
+
+class ChainTooShortWarning(RuntimeWarning):
+    """The chain is shorter than 50 integrated autocorrelation times: estimates are unreliable."""
+
+
+# ----------------------------------------------------------------------------- priors
+class Uniform(eqx.Module):
+    """Flat density on [lo, hi] (natural units of the constant)."""
+
+    lo: float
+    hi: float
+
+    def __check_init__(self):
+        if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.hi > self.lo):
+            raise ValueError(f"Uniform prior needs finite lo < hi, got ({self.lo}, {self.hi})")
+
+    def log_prob(self, x):
+        inside = (x >= self.lo) & (x <= self.hi)
+        return jnp.where(inside, -math.log(self.hi - self.lo), -jnp.inf)
+
+
+class LogUniform(eqx.Module):
+    """Density proportional to 1/x on [lo, hi], 0 < lo < hi (flat in log x)."""
+
+    lo: float
+    hi: float
+
+    def __check_init__(self):
+        if not (math.isfinite(self.hi) and 0 < self.lo < self.hi):
+            raise ValueError(f"LogUniform prior needs 0 < lo < hi, got ({self.lo}, {self.hi})")
+
+    def log_prob(self, x):
+        inside = (x >= self.lo) & (x <= self.hi)
+        xs = jnp.where(inside, x, 1.0)
+        return jnp.where(inside, -jnp.log(xs) - math.log(math.log(self.hi / self.lo)), -jnp.inf)
+
+
+class Normal(eqx.Module):
+    """Gaussian density N(mean, sd^2) (natural units)."""
+
+    mean: float
+    sd: float
+
+    def __check_init__(self):
+        if not (math.isfinite(self.mean) and math.isfinite(self.sd) and self.sd > 0):
+            raise ValueError(f"Normal prior needs a finite mean and sd > 0, got ({self.mean}, {self.sd})")
+
+    def log_prob(self, x):
+        z = (x - self.mean) / self.sd
+        return -0.5 * z * z - math.log(self.sd * math.sqrt(2 * math.pi))
+
+
+def _as_prior(name, p):
+    if isinstance(p, (Uniform, LogUniform, Normal)):
+        return p
+    if isinstance(p, (tuple, list)) and len(p) == 2:
+        return Uniform(float(p[0]), float(p[1]))
+    raise ValueError(f"prior for {name!r} must be Uniform, LogUniform, Normal or a (lo, hi) tuple, got {p!r}")
+
+
+# ----------------------------------------------------------------------------- posterior
+@dataclasses.dataclass(frozen=True)
+class Posterior:
+    """Samples of the constants of a model given calibration data (from ``fit_mcmc``).
+
+    Attributes:
+        samples: (n_samples, p) natural values after burn-in and thinning, columns ``param_names``
+            (array fields expand to ``name[i]``; then ``log10_multiplier[dataset]`` when fitted).
+        sigma: (n_samples,) noise s.d. in log10 units.
+        log_prob: (n_samples,) log posterior of each sample.
+        acceptance_fraction: mean acceptance fraction of the walkers (0.2-0.5 is healthy).
+        tau: (p + 1,) integrated autocorrelation time of each sampled coordinate (steps).
+        converged: nsteps >= 50 max(tau); ``warning`` says why not otherwise.
+        lsq: the least-squares fit the walkers started from (``FitResult``).
+    """
+
+    samples: np.ndarray
+    sigma: np.ndarray
+    log_prob: np.ndarray
+    param_names: list
+    acceptance_fraction: float
+    tau: np.ndarray
+    converged: bool
+    warning: str | None
+    nwalkers: int
+    nsteps: int
+    burn: int
+    lsq: Any
+    _problem: Any = dataclasses.field(repr=False)
+    _theta: np.ndarray = dataclasses.field(repr=False)  # (n_samples, p) unconstrained values
+
+    @property
+    def n_model(self) -> int:
+        return self._problem.static.n_model
+
+    def interval(self, q: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+        """Central ``q`` credible interval of every parameter: (lo (p,), hi (p,))."""
+        if not 0 < q < 1:
+            raise ValueError(f"q must be in (0, 1), got {q}")
+        a = (1 - q) / 2
+        return np.quantile(self.samples, a, axis=0), np.quantile(self.samples, 1 - a, axis=0)
+
+    def median(self) -> np.ndarray:
+        """Posterior median of every parameter, shape (p,)."""
+        return np.median(self.samples, axis=0)
+
+    def model(self, index: int | None = None):
+        """The model at posterior sample ``index`` (None: at the coordinate-wise posterior median)."""
+        if index is None:
+            theta = np.median(self._theta, axis=0)  # monotone reparametrisation: median commutes
+        else:
+            theta = self._theta[int(index)]
+        with jax.enable_x64(True):
+            return self._problem.theta_to_model(theta)
+
+    def log10_sensitivity(self, n: int = 200, seed: int = 0) -> np.ndarray:
+        """log10 model sensitivity of ``n`` random posterior samples at the fitted rows: (n, rows)."""
+        rng = np.random.default_rng(seed)
+        idx = rng.choice(len(self._theta), size=min(n, len(self._theta)), replace=False)
+        prob = self._problem
+        with jax.enable_x64(True):
+            fixed, arrays = _device_args(prob)
+            f = jax.jit(jax.vmap(lambda th: _model_log10(th, fixed, arrays, prob.static)))
+            return np.asarray(f(jnp.asarray(self._theta[idx])))
+
+    def summary(self) -> str:
+        lo, hi = self.interval(0.95)
+        med = self.median()
+        lines = [f"MCMC: {self.nwalkers} walkers x {self.nsteps} steps (burn {self.burn}); acceptance "
+                 f"{self.acceptance_fraction:.2f}; max tau {np.max(self.tau):.1f} steps; "
+                 f"{'converged' if self.converged else 'NOT converged'}"]
+        for name, m, a, b in zip(self.param_names, med, lo, hi):
+            lines.append(f"  {name:<28} {m: .5g}  [{a:.5g}, {b:.5g}]")
+        lines.append(f"  {'sigma (log10)':<28} {np.median(self.sigma): .4g}")
+        return "\n".join(lines)
+
+
+def _model_log10(theta, fixed, arrays, st):
+    from ._fit import _predict_log10
+
+    return _predict_log10(theta, fixed, arrays, st)
+
+
+def _build_logpost(prob: _Problem, priors: Mapping[str, Any], sigma: float | None, theta_ref: np.ndarray,
+                   box: float):
+    """Return (log posterior of one coordinate vector, dimension). Coordinates: theta (+ ln sigma)."""
+    st = prob.static
+    fixed, arrays = _device_args(prob)
+    n = arrays["y"].shape[0]
+    per_leaf = []
+    for leaf in st.spec:
+        per_leaf.append(priors.get(leaf.name, priors.get(leaf.field)))
+    theta_ref = jnp.asarray(theta_ref)
+    free_sigma = sigma is None
+    ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
+
+    def logpost(x):
+        theta = x[: st.n_free]
+        lp = jnp.zeros((), x.dtype)
+        off = 0
+        for leaf, prior in zip(st.spec, per_leaf):
+            u = theta[off:off + leaf.size]
+            if prior is None:
+                # default: flat in the unconstrained coordinate within +-box of the least-squares value
+                ref = theta_ref[off:off + leaf.size]
+                lp = lp + jnp.sum(jnp.where(jnp.abs(u - ref) <= box, 0.0, -jnp.inf))
+            else:
+                val, dxdu = _from_u(u, leaf)
+                adx = jnp.abs(dxdu)
+                ok = adx > 0
+                logjac = jnp.where(ok, jnp.log(jnp.where(ok, adx, 1.0)), -jnp.inf)
+                lp = lp + jnp.sum(prior.log_prob(val) + logjac)
+            off += leaf.size
+        if st.n_free > st.n_model:  # multipliers: flat in log10 m within +-box
+            w = theta[st.n_model:]
+            lp = lp + jnp.sum(jnp.where(jnp.abs(w) <= box, 0.0, -jnp.inf))
+        r = _residuals(theta, fixed, arrays, st)
+        if free_sigma:
+            ln_s = x[st.n_free]
+            lp = lp + jnp.where((ln_s >= ln_lo) & (ln_s <= ln_hi), 0.0, -jnp.inf)
+            ln_s = jnp.clip(ln_s, ln_lo, ln_hi)
+        else:
+            ln_s = jnp.log(jnp.asarray(sigma, x.dtype))
+        ll = -0.5 * jnp.sum(r * r) * jnp.exp(-2.0 * ln_s) - n * ln_s - 0.5 * n * math.log(2 * math.pi)
+        out = lp + ll
+        return jnp.where(jnp.isnan(out), -jnp.inf, out)
+
+    return logpost, st.n_free + (1 if free_sigma else 0)
+
+
+def fit_mcmc(
+    model,
+    data,
+    priors: Mapping[str, Any] | None = None,
+    nwalkers: int = 32,
+    nsteps: int = 2000,
+    *,
+    burn: int | None = None,
+    thin: int = 1,
+    sigma: float | None = None,
+    multipliers: bool = False,
+    fit: Sequence[str] | None = None,
+    rows="auto",
+    seed: int = 0,
+    box: float = 10.0,
+    progress: bool = False,
+) -> Posterior:
+    """Sample the posterior of ``model``'s constants given thresholds ``data`` with emcee.
+
+    Args:
+        model: a ``pmetric.CSFModel`` (starting point; a least-squares fit is run first and the walkers
+            start in a small ball around it, scaled by its standard errors).
+        data: ``pmetric.CalibrationData``.
+        priors: {field name: ``Uniform(lo, hi)`` | ``LogUniform(lo, hi)`` | ``Normal(mean, sd)`` | (lo, hi)}
+            on natural values (array fields: elementwise). Fields without a prior get a flat prior on
+            the unconstrained coordinate (log / logit) within ``box`` of the least-squares value.
+        nwalkers: ensemble size (>= 2 x dimension, even). nsteps: steps per walker.
+        burn: steps discarded (default nsteps // 4). thin: keep every ``thin``-th step.
+        sigma: fixed noise s.d. in log10 units (default: sampled, prior flat in ln sigma on [1e-4, 10]).
+        multipliers, fit, rows: as in ``fit_least_squares``.
+        seed: seeds the initial ball and emcee's random state. progress: show a rich progress bar.
+
+    Returns:
+        ``Posterior``; warns ``ChainTooShortWarning`` when nsteps < 50 x the largest autocorrelation time.
+    """
+    import emcee
+
+    priors = dict(priors or {})
+    if not isinstance(nwalkers, int) or not isinstance(nsteps, int) or nsteps < 1:
+        raise ValueError(f"nwalkers and nsteps must be positive ints, got {nwalkers!r}, {nsteps!r}")
+    burn = nsteps // 4 if burn is None else int(burn)
+    if not 0 <= burn < nsteps:
+        raise ValueError(f"burn must be in [0, nsteps), got {burn}")
+    if thin < 1:
+        raise ValueError(f"thin must be >= 1, got {thin}")
+    if sigma is not None and not (sigma > 0 and math.isfinite(sigma)):
+        raise ValueError(f"sigma must be > 0 (log10 units), got {sigma}")
+    if box <= 0:
+        raise ValueError(f"box must be > 0, got {box}")
+    lsq = fit_least_squares(model, data, multipliers=multipliers, fit=fit, rows=rows)
+    with jax.enable_x64(True):
+        prob = _Problem(model, data, fit=fit, multipliers=multipliers, rows=rows)
+        names = _param_names(prob)
+        known = set(names) | {leaf.field for leaf in prob.static.spec} | {leaf.name for leaf in prob.static.spec}
+        unknown = [k for k in priors if k not in known]
+        if unknown:
+            raise ValueError(f"priors name unknown or unfitted fields {unknown}; fitted: "
+                             f"{[leaf.name for leaf in prob.static.spec]}")
+        priors = {k: _as_prior(k, p) for k, p in priors.items()}
+        # least-squares optimum in the unconstrained coordinates, and its standard errors there
+        theta_hat = np.asarray(lsq.theta, np.float64)
+        fixed, arrays = _device_args(prob)
+        r_hat = np.asarray(_residuals(jnp.asarray(theta_hat), fixed, arrays, prob.static))
+        jac = np.asarray(jax.jacfwd(lambda th: _residuals(th, fixed, arrays, prob.static))(jnp.asarray(theta_hat)))
+        s2 = float(np.sum(r_hat ** 2) / max(len(r_hat) - len(theta_hat), 1))
+        cov_u = np.linalg.pinv(jac.T @ jac, hermitian=True) * s2
+        sd_u = np.sqrt(np.clip(np.diag(cov_u), 1e-16, None))
+        logpost, ndim = _build_logpost(prob, priors, sigma, theta_hat, box)
+        if nwalkers < 2 * ndim or nwalkers % 2:
+            raise ValueError(f"nwalkers must be even and >= 2 x {ndim} (the dimension), got {nwalkers}")
+        vlogpost = jax.jit(jax.vmap(logpost))
+        rng = np.random.default_rng(seed)
+        centre = theta_hat if sigma is not None else np.append(theta_hat, 0.5 * math.log(max(s2, 1e-8)))
+        spread = sd_u if sigma is not None else np.append(sd_u, 0.05)
+        p0 = centre + 0.5 * spread * rng.standard_normal((nwalkers, ndim))
+        lp0 = np.asarray(vlogpost(jnp.asarray(p0)))
+        if not np.isfinite(lp0).all():
+            raise ValueError("the starting ball has walkers outside the prior support; widen the priors "
+                             "or start the model inside them")
+
+        def log_prob(x):
+            return np.asarray(vlogpost(jnp.asarray(x)))
+
+        sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
+        sampler.random_state = np.random.RandomState(seed).get_state()
+        if progress:
+            from rich.progress import Progress
+
+            with Progress(transient=True) as bar:
+                task = bar.add_task(f"emcee {nwalkers}x{nsteps}", total=nsteps)
+                for i, _ in enumerate(sampler.sample(p0, iterations=nsteps)):
+                    if i % 50 == 49:
+                        bar.update(task, advance=50)
+        else:
+            sampler.run_mcmc(p0, nsteps)
+        chain = sampler.get_chain()  # (nsteps, nwalkers, ndim)
+        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), np.float64)
+        flat = chain[burn::thin].reshape(-1, ndim)
+        lps = sampler.get_log_prob()[burn::thin].reshape(-1)
+        theta_s = flat[:, : prob.static.n_free]
+        samples = np.asarray(jax.jit(jax.vmap(lambda th: _natural_jax(th, prob)))(jnp.asarray(theta_s)))
+        sig = np.exp(flat[:, -1]) if sigma is None else np.full(len(flat), float(sigma))
+    tau_max = float(np.max(tau))
+    converged = bool(np.isfinite(tau_max) and nsteps >= _AUTOCORR_FACTOR * tau_max)
+    warning = None
+    if not converged:
+        warning = (f"chain too short: {nsteps} steps < {_AUTOCORR_FACTOR} x the largest integrated "
+                   f"autocorrelation time ({tau_max:.1f} steps); run >= {int(math.ceil(50 * tau_max))} steps")
+        warnings.warn(warning, ChainTooShortWarning, stacklevel=2)
+    return Posterior(
+        samples=samples, sigma=sig, log_prob=lps, param_names=names,
+        acceptance_fraction=float(np.mean(sampler.acceptance_fraction)), tau=tau, converged=converged,
+        warning=warning, nwalkers=nwalkers, nsteps=nsteps, burn=burn, lsq=lsq, _problem=prob, _theta=theta_s,
+    )
+
+
+def _natural_jax(theta, prob):
+    from ._fit import _log10_multipliers
+
+    out, off = [], 0
+    for s in prob.static.spec:
+        x, _ = _from_u(theta[off:off + s.size], s)
+        out.append(x)
+        off += s.size
+    if prob.static.multipliers:
+        out.append(_log10_multipliers(theta, prob.static))
+    return jnp.concatenate(out)
+
+
+def conservative(posterior: Posterior, q: float = 0.95, *, predictive: bool = True, n_draws: int = 400,
+                 seed: int = 0):
+    """A model (same class) whose thresholds sit at the lower ``q`` quantile of the posterior.
+
+    At every fitted stimulus, the ``1 - q`` quantile of threshold contrast (= the ``q`` quantile of
+    log10 sensitivity) is taken over ``n_draws`` posterior draws; with ``predictive`` (default) each
+    draw includes the observer noise ``sigma`` (posterior predictive: where a fresh measurement would
+    fall), otherwise only the uncertainty of the constants. The model family is then refitted by
+    Levenberg-Marquardt to those quantile thresholds, so the result is an ordinary model of the same
+    class that ``save_model`` stores and the simplifier uses. With q = 0.95, a change the returned model
+    calls imperceptible is (to the accuracy of the refit) imperceptible for 95 % of the posterior.
+    """
+    from pmetric import CalibrationData
+
+    if not 0 < q < 1:
+        raise ValueError(f"q must be in (0, 1), got {q}")
+    if n_draws < 10:
+        raise ValueError(f"n_draws must be >= 10, got {n_draws}")
+    prob = posterior._problem
+    rng = np.random.default_rng(seed)
+    ls = posterior.log10_sensitivity(n=n_draws, seed=seed)  # (n, rows)
+    if predictive:
+        idx = rng.choice(len(posterior.sigma), size=ls.shape[0], replace=True)
+        ls = ls + posterior.sigma[idx, None] * rng.standard_normal(ls.shape)
+    target = np.quantile(ls, q, axis=0)
+    d = prob.data
+    pseudo = CalibrationData.from_arrays(
+        d.f, log_threshold=-target, e=d.e, velocity=d.velocity, luminance=d.luminance, area=d.area,
+        vis_field=d.vis_field, dataset="conservative",
+    )
+    fitted = [leaf.name for leaf in prob.static.spec]
+    res = fit_least_squares(posterior.model(None), pseudo, fit=fitted, rows=None)
+    return res.model

@@ -1,0 +1,696 @@
+"""Per-view scoring of every fold of a vertex tree (stage 3 of optim), and the imperceptible cut.
+
+``score(tree, view, model, metric)`` returns one key per node, larger = more important to keep the node
+unfolded, made monotone (a parent's key is at least its children's, Luebke & Hallen 2001 [seed 004],
+footnote 2). Units of the keys:
+
+* ``"perceptual"``: the imperceptible distance of the fold (seed 004 section 5.3), a multiple of the
+  current viewing distance: ``k <= 1`` means the fold cannot be seen from here.
+* ``"size"``: projected bounding-sphere diameter, pixels (VDSlib's default criterion).
+* ``"geometric"``: projected object-space fold error (``tree.geom_error``, largest distance from a
+  supported vertex to the proxy), pixels, at the nearest point of the node's bounding sphere.
+
+Stages (one jitted XLA function over all nodes, flat arrays, per view):
+
+1. ``_cull``: sphere-frustum test and wholly-back-facing test (normal masks); culled nodes and their
+   whole subtrees are folded (key 0).
+2. ``_extent``: angular size of the bounding sphere -> ``theta`` (deg of the viewer's visual field;
+   the fold's lowest frequency is ``1 / (2 theta)`` cycles/deg, seed 004 section 3.1).
+3. ``_eccentricity``: angle (deg) between the node's image and the nearest gaze point minus half of
+   ``theta`` minus the gaze uncertainty, clamped at 0 (Luebke et al. 2000 [seed 001] section 4.4);
+   skipped (0) when the view has no gaze.
+4. ``_velocity``: retinal velocity (deg/s) of the node's image from the previous view; skipped (0)
+   when the view has no previous view.
+5. ``_contrast``: Michelson contrast of display luminances (cd/m2): the fold's own luminance change
+   ``fold_delta`` above the node's darkest value for front-facing nodes; for silhouette nodes (normal
+   mask overlapping both the possibly-front-facing and the possibly-back-facing cells, seed 001
+   section 4.3) the node's luminance range against the scene's brightest and darkest values,
+   background included (seed 001 section 4.2, seed 004 section 5.2).
+6. ``_key``: ``model.imperceptible_distance(c, theta, e, v)``, or the pixel keys.
+7. ``_monotone``: maximum propagated from the deepest level up (nodes kept in level order).
+
+Per-tree device arrays (level order, packed normal masks) are built once: :func:`scoring_context`
+caches them on the tree.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import weakref
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["score", "imperceptible_cut", "node_terms", "scoring_context", "ScoringContext", "NodeTerms",
+           "METRICS"]
+
+METRICS = ("perceptual", "size", "geometric")
+
+#: projected sizes are capped at this many image heights (a node around the eye covers everything)
+_SIZE_CAP_IMAGES = 16.0
+#: extra angular margins (deg) of the silhouette table, chosen per node by its angular radius
+_MARGINS_DEG = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 90.0)
+#: direction bins per cube-face side for the per-node view direction
+_DIR_BINS = 16
+
+
+# =============================================================================== stage 0: normal cube
+def _cube_face_uv(d: np.ndarray):
+    """Unit-ish vectors (..., 3) -> (face 0..5 = +x,-x,+y,-y,+z,-z, u, v in [-1, 1])."""
+    ad = np.abs(d)
+    axis = np.argmax(ad, axis=-1)
+    comp = np.take_along_axis(d, axis[..., None], -1)[..., 0]
+    face = 2 * axis + (comp < 0)
+    others = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+    m = np.maximum(np.abs(comp), 1e-30)
+    u = np.take_along_axis(d, others[..., :1], -1)[..., 0] / m
+    v = np.take_along_axis(d, others[..., 1:], -1)[..., 0] / m
+    return face, u, v
+
+
+def _fallback_cell(normals: np.ndarray) -> np.ndarray:
+    """Normal-cube cell (0..383) of unit normals (..., 3): 6 faces x 8 x 8 cells (seed 001 section 4.3)."""
+    face, u, v = _cube_face_uv(np.asarray(normals, np.float64))
+    i = np.clip(np.floor((u + 1) * 4), 0, 7).astype(np.int64)
+    j = np.clip(np.floor((v + 1) * 4), 0, 7).astype(np.int64)
+    return face * 64 + j * 8 + i
+
+
+def _cell_layout():
+    """(cell function normals -> cell index 0..383, bit function cell -> (byte, bit value)).
+
+    Uses the tree builder's normal-cube layout when ``optim._tree`` exposes one, so the masks this
+    module builds agree bit for bit with ``tree.normal_mask``; else the layout of :func:`_fallback_cell`
+    with bit ``cell % 8`` (LSB first) of byte ``cell // 8``.
+    """
+    try:
+        from . import _tree  # noqa: F401
+
+        cell_fn = getattr(_tree, "normal_cells", None)
+        bit_fn = None  # _tree documents the same bit order: byte cell // 8, bit cell % 8
+    except ImportError:
+        cell_fn = bit_fn = None
+    if cell_fn is None:
+        cell_fn = _fallback_cell
+    if bit_fn is None:
+        def bit_fn(cell):
+            cell = np.asarray(cell)
+            return cell // 8, (1 << (cell % 8)).astype(np.uint8)
+    return cell_fn, bit_fn
+
+
+def _sample_sphere(per_side: int) -> np.ndarray:
+    """Unit vectors sampling the sphere through a (6, per_side, per_side) cube-face grid, edges included."""
+    t = np.linspace(-1.0, 1.0, per_side)
+    u, v = np.meshgrid(t, t, indexing="ij")
+    u, v, one = u.ravel(), v.ravel(), np.ones(u.size)
+    faces = [np.stack(x, -1) for x in ((one, u, v), (-one, u, v), (u, one, v), (u, -one, v), (u, v, one), (u, v, -one))]
+    d = np.concatenate(faces)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _cones(dirs: np.ndarray, labels: np.ndarray, n: int, pad_deg: float):
+    """Axis (n, 3) and angular radius (n,) deg (+ pad) of the direction samples in each label."""
+    sums = np.zeros((n, 3))
+    np.add.at(sums, labels, dirs)
+    axes = sums / np.maximum(np.linalg.norm(sums, axis=-1, keepdims=True), 1e-30)
+    ang = np.degrees(np.arccos(np.clip(np.sum(dirs * axes[labels], -1), -1, 1)))
+    rad = np.zeros(n)
+    np.maximum.at(rad, labels, ang)
+    return axes, rad + pad_deg
+
+
+def _dir_bin_np(d: np.ndarray) -> np.ndarray:
+    face, u, v = _cube_face_uv(d)
+    q = _DIR_BINS
+    i = np.clip(np.floor((u + 1) * (q / 2)), 0, q - 1).astype(np.int64)
+    j = np.clip(np.floor((v + 1) * (q / 2)), 0, q - 1).astype(np.int64)
+    return face * q * q + j * q + i
+
+
+@functools.lru_cache(maxsize=2)
+def _silhouette_table_cached(layout_key) -> np.ndarray:
+    cell_fn, bit_fn = _cell_layout()
+    samples = _sample_sphere(97)
+    spacing = 2.0 / 96 * 57.3  # deg between neighbouring samples at a face centre (upper bound)
+    cell_axes, cell_rad = _cones(samples, np.asarray(cell_fn(samples)), 384, spacing)
+    nb = 6 * _DIR_BINS * _DIR_BINS
+    bin_axes, bin_rad = _cones(samples, _dir_bin_np(samples), nb, spacing)
+    ang = np.degrees(np.arccos(np.clip(bin_axes @ cell_axes.T, -1, 1)))  # (nb, 384)
+    slack = cell_rad[None, :] + bin_rad[:, None]
+    byte, bit = bit_fn(np.arange(384))
+    table = np.zeros((len(_MARGINS_DEG), nb, 2, 48), np.uint8)
+    for li, m in enumerate(_MARGINS_DEG):
+        front = ang - slack - m < 90.0  # some normal of the cell may face some point's eye direction
+        back = ang + slack + m > 90.0
+        for k, sel in enumerate((front, back)):
+            rows, cells = np.nonzero(sel)
+            np.bitwise_or.at(table[li, :, k], (rows, byte[cells]), bit[cells])
+    return table.reshape(len(_MARGINS_DEG) * nb, 2, 48).view("<u4").reshape(-1, 24)
+
+
+def silhouette_table() -> np.ndarray:
+    """(len(margins) * 6 * 16 * 16, 24) uint32: per (margin, view-direction bin) the possibly-front-facing
+    (words 0..11) and possibly-back-facing (words 12..23) normal-cube cells, as packed 48-byte masks
+    (Zhang & Hoff's normal masks as used by seed 001 section 4.3, made conservative for perspective)."""
+    cell_fn, bit_fn = _cell_layout()
+    return _silhouette_table_cached((id(cell_fn), id(bit_fn)))
+
+
+# =============================================================================== stage 1: per-tree context
+class ScoringContext(eqx.Module):
+    """Per-tree device arrays, built once by :func:`scoring_context` (cached on the tree).
+
+    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first
+    order, as flat float32 columns (M,): ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object
+    units), ``lum_min``, ``lum_max``, ``fold_delta`` (relative luminance), ``geom_error`` (object
+    units); ``mask`` (M, 12) uint32 packed normal masks; ``parent`` (M,) int32 position of the parent
+    (-1 for the root); ``node`` (M,) int32 tree index. Static: ``levels`` (start offset of each depth
+    level, plus M), ``n_nodes`` (N), ``sorted_nodes`` (``node`` ascending), ``scene_lum`` (darkest,
+    brightest relative luminance of the model).
+    """
+
+    cx: jax.Array
+    cy: jax.Array
+    cz: jax.Array
+    radius: jax.Array
+    lum_min: jax.Array
+    lum_max: jax.Array
+    fold_delta: jax.Array
+    geom_error: jax.Array
+    mask: jax.Array
+    parent: jax.Array
+    first_child: jax.Array
+    n_children: jax.Array
+    node: jax.Array
+    levels: tuple = eqx.field(static=True)
+    level_kmax: tuple = eqx.field(static=True)
+    n_nodes: int = eqx.field(static=True)
+    sorted_nodes: bool = eqx.field(static=True)
+    scene_lum: tuple = eqx.field(static=True)
+
+
+_FIELDS = ("parent", "child_start", "child_count", "center", "radius", "lum_min", "lum_max",
+           "fold_delta", "geom_error", "normal_mask")
+_CONTEXTS: dict = {}
+
+
+def _check_tree(tree) -> int:
+    missing = [f for f in _FIELDS if getattr(tree, f, None) is None]
+    if missing:
+        raise ValueError(f"score: the tree lacks the field(s) {', '.join(missing)} (expected an optim.VertexTree)")
+    n = len(np.asarray(tree.parent))
+    if n == 0:
+        raise ValueError("score: the tree has no nodes")
+    for f in _FIELDS:
+        a = np.asarray(getattr(tree, f))
+        want = {"center": (n, 3), "normal_mask": (n, 48)}.get(f, (n,))
+        if a.shape != want:
+            raise ValueError(f"score: tree.{f} has shape {a.shape}, expected {want}")
+    return n
+
+
+def _level_order(parent, child_start, child_count):
+    """Breadth-first order of the nodes: (order (N,) tree indices, depth (N,) of each entry)."""
+    n = len(parent)
+    roots = np.flatnonzero(parent < 0)
+    if len(roots) != 1 or roots[0] != 0:
+        raise ValueError(f"score: the tree must have exactly one root, node 0 (found roots {roots[:5].tolist()})")
+    order, depth = [np.array([0], np.int64)], [np.zeros(1, np.int64)]
+    total = 1
+    while True:
+        cur = order[-1]
+        cnt = child_count[cur].astype(np.int64)
+        if cnt.sum() == 0:
+            break
+        starts = np.repeat(child_start[cur].astype(np.int64), cnt)
+        nxt = starts + np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        order.append(nxt)
+        depth.append(np.full(len(nxt), len(depth)))
+        total += len(nxt)
+        if total > n:
+            raise ValueError("score: the tree's child ranges are inconsistent (a node is reached twice)")
+    if total != n:
+        raise ValueError(f"score: only {total} of {n} nodes are reachable from the root through child ranges")
+    order = np.concatenate(order)
+    if not np.array_equal(parent[order[1:]] >= 0, np.ones(n - 1, bool)):
+        raise ValueError("score: the tree's parent and child arrays disagree")
+    return order, np.concatenate(depth)
+
+
+def scoring_context(tree) -> ScoringContext:
+    """Build (once; cached on the tree) the device arrays :func:`score` needs for ``tree``."""
+    cached = getattr(tree, "_plod_scoring_context", None)
+    if cached is None:
+        hit = _CONTEXTS.get(id(tree))
+        if hit is not None and hit[0]() is tree:
+            cached = hit[1]
+    if cached is not None:
+        return cached
+    n = _check_tree(tree)
+    parent = np.asarray(tree.parent, np.int64)
+    count = np.asarray(tree.child_count)
+    order, depth = _level_order(parent, np.asarray(tree.child_start), count)
+    keep = count[order] > 0
+    node = order[keep]
+    m = len(node)
+    if m == 0:  # a single-vertex "tree": nothing to fold
+        node = np.zeros(1, np.int64)
+        m = 1
+        depth_int = np.zeros(1, np.int64)
+    else:
+        depth_int = depth[keep]
+    pos = np.full(n, -1, np.int64)
+    pos[node] = np.arange(m)
+    par = np.where(parent[node] >= 0, pos[np.maximum(parent[node], 0)], -1)
+    if (par[1:] < 0).any():
+        raise ValueError("score: an internal node's parent is not an internal node")
+    levels = tuple(int(x) for x in np.searchsorted(depth_int, np.arange(int(depth_int.max()) + 2)))
+    n_ch = np.bincount(par[1:], minlength=m).astype(np.int64)
+    first = np.full(m, 0, np.int64)
+    if m > 1:  # children of a node are contiguous in level order: first = position of the first one
+        first[par[:0:-1]] = np.arange(m - 1, 0, -1)
+    kmax = tuple(int(n_ch[levels[i]:levels[i + 1]].max(initial=0)) for i in range(len(levels) - 1))
+    f32 = lambda a: jnp.asarray(np.asarray(a, np.float32)[node])  # noqa: E731
+    center = np.asarray(tree.center, np.float32)[node]
+    mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
+    lum_min, lum_max = np.asarray(tree.lum_min, np.float32), np.asarray(tree.lum_max, np.float32)
+    ctx = ScoringContext(
+        cx=jnp.asarray(center[:, 0]), cy=jnp.asarray(center[:, 1]), cz=jnp.asarray(center[:, 2]),
+        radius=f32(tree.radius), lum_min=f32(lum_min), lum_max=f32(lum_max), fold_delta=f32(tree.fold_delta),
+        geom_error=f32(tree.geom_error), mask=jnp.asarray(mask), parent=jnp.asarray(par.astype(np.int32)),
+        first_child=jnp.asarray(first.astype(np.int32)), n_children=jnp.asarray(n_ch.astype(np.int32)),
+        node=jnp.asarray(node.astype(np.int32)), levels=levels, level_kmax=kmax, n_nodes=n,
+        sorted_nodes=bool(np.all(np.diff(node) > 0)),
+        scene_lum=(float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))),
+    )
+    try:
+        object.__setattr__(tree, "_plod_scoring_context", ctx)
+    except (AttributeError, TypeError):
+        _CONTEXTS[id(tree)] = (weakref.ref(tree), ctx)
+    return ctx
+
+
+# =============================================================================== stage 2: view parameters
+class _ViewParams(NamedTuple):
+    eye: jax.Array  # (3,)
+    rot: jax.Array  # (3, 3) world -> camera
+    scal: jax.Array  # (10,) focal_px, tan_x, tan_y, near, size_cap, deg_per_px, kx, ky, gaze_err, 1/dt
+    gaze: jax.Array  # (G, 2) pixel offsets from the image centre (y down)
+    lum: jax.Array  # (4,) black cd/m2, peak - black cd/m2, scene min, scene max (relative)
+    prev_eye: jax.Array
+    prev_rot: jax.Array
+    prev_focal: jax.Array
+
+
+def _view_params(view, ctx: ScoringContext) -> _ViewParams:
+    from ._view import View
+
+    if not isinstance(view, View):
+        raise ValueError(f"score: view must be an optim.View, got {type(view).__name__}")
+    w, h = view.width, view.height
+    tan_y = math.tan(math.radians(view.fov_deg) / 2)
+    px, py = view.pixel_pitch_m
+    d = view.distance_m
+    gaze = view.gaze_px if view.gaze_px is not None else np.array([[w / 2, h / 2]])
+    gaze = gaze - np.array([w / 2, h / 2])
+    prev = view.previous
+    scal = [view.focal_px, tan_y * w / h, tan_y, view.near, _SIZE_CAP_IMAGES * max(w, h), view.degrees_per_pixel,
+            px / d, py / d, view.gaze_error_deg, 1.0 / view.dt_s if prev is not None else 0.0]
+    black = float(view.display.black_level)
+    peak = float(view.display.peak_luminance)
+    lo = min(ctx.scene_lum[0], view.background)
+    hi = max(ctx.scene_lum[1], view.background)
+    f = jnp.float32
+    return _ViewParams(
+        eye=jnp.asarray(view.eye, f), rot=jnp.asarray(view.rotation, f), scal=jnp.asarray(scal, f),
+        gaze=jnp.asarray(gaze, f), lum=jnp.asarray([black, peak - black, lo, hi], f),
+        prev_eye=jnp.asarray((prev or view).eye, f), prev_rot=jnp.asarray((prev or view).rotation, f),
+        prev_focal=jnp.asarray((prev or view).focal_px, f),
+    )
+
+
+# =============================================================================== stage 3: the kernel
+def _safe_div(a, b):
+    ok = b != 0
+    return jnp.where(ok, a / jnp.where(ok, b, 1.0), 0.0)
+
+
+def _atan2_pos(y, x):
+    """atan2(y, x) in rad for y >= 0, with mul/add only (max error about 2e-6 rad; XLA's CPU atan2
+    is scalar code and ~30x slower). Finite value and gradient at (0, 0)."""
+    ax = jnp.abs(x)
+    mx = jnp.maximum(ax, y)
+    mn = jnp.minimum(ax, y)
+    a = _safe_div(mn, mx)
+    s = a * a
+    r = a * (0.99997726 + s * (-0.33262347 + s * (0.19354346 + s * (-0.11643287 + s * (0.05265332 - 0.0117212 * s)))))
+    r = jnp.where(y > ax, 0.5 * np.pi - r, r)
+    return jnp.where(x < 0, np.pi - r, r)
+
+
+def _angle_deg(a, b):
+    """Angle (deg) between 3-vectors given as column tuples a = (ax, ay, az), b = (bx, by, bz)."""
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    n2 = cx * cx + cy * cy + cz * cz
+    pos = n2 > 0
+    n = jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+    return jnp.degrees(_atan2_pos(n, a[0] * b[0] + a[1] * b[1] + a[2] * b[2]))
+
+
+def _dir_bin(dx, dy, dz):
+    """View-direction bin (0 .. 6*16*16-1) of vectors (columns); same layout as ``_dir_bin_np``."""
+    ax_, ay_, az_ = jnp.abs(dx), jnp.abs(dy), jnp.abs(dz)
+    x_major = (ax_ >= ay_) & (ax_ >= az_)
+    y_major = ~x_major & (ay_ >= az_)
+    axis = jnp.where(x_major, 0, jnp.where(y_major, 1, 2))
+    comp = jnp.where(x_major, dx, jnp.where(y_major, dy, dz))
+    u_src = jnp.where(x_major, dy, dx)
+    v_src = jnp.where(x_major | y_major, dz, dy)
+    inv = 1.0 / jnp.maximum(jnp.abs(comp), 1e-30)
+    q = _DIR_BINS
+    i = jnp.clip(jnp.floor((u_src * inv + 1) * (q / 2)), 0, q - 1).astype(jnp.int32)
+    j = jnp.clip(jnp.floor((v_src * inv + 1) * (q / 2)), 0, q - 1).astype(jnp.int32)
+    face = 2 * axis + (comp < 0).astype(jnp.int32)
+    return face * q * q + j * q + i
+
+
+class _Terms(NamedTuple):
+    culled: jax.Array
+    backfacing: jax.Array
+    silhouette: jax.Array
+    size_px: jax.Array
+    theta: jax.Array
+    ecc: jax.Array
+    vel: jax.Array
+    contrast: jax.Array
+    err_px: jax.Array
+
+
+def _project(cx, cy, cz, eye, rot):
+    dx, dy, dz = cx - eye[0], cy - eye[1], cz - eye[2]
+    x = rot[0, 0] * dx + rot[0, 1] * dy + rot[0, 2] * dz
+    y = rot[1, 0] * dx + rot[1, 1] * dy + rot[1, 2] * dz
+    depth = -(rot[2, 0] * dx + rot[2, 1] * dy + rot[2, 2] * dz)
+    return (dx, dy, dz), x, y, depth
+
+
+def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_motion: bool, need: str) -> _Terms:
+    focal, tan_x, tan_y, near, size_cap, dpp, kx, ky, gaze_err, inv_dt = (vp.scal[i] for i in range(10))
+    r = ctx.radius
+    (dx, dy, dz), x, y, depth = _project(ctx.cx, ctx.cy, ctx.cz, vp.eye, vp.rot)
+    dist = jnp.sqrt(dx * dx + dy * dy + dz * dz)
+    inside = dist <= r  # the eye is inside the bounding sphere
+
+    # --- stage 1: cull: sphere wholly outside a side plane of the frustum or before the near plane
+    ix, iy = jax.lax.rsqrt(1 + tan_x * tan_x), jax.lax.rsqrt(1 + tan_y * tan_y)
+    outside = ((depth + r < near)
+               | ((x - tan_x * depth) * ix > r) | ((-x - tan_x * depth) * ix > r)
+               | ((y - tan_y * depth) * iy > r) | ((-y - tan_y * depth) * iy > r))
+    s = jnp.clip(_safe_div(r, dist), 0.0, 1.0)  # sin of the angular radius
+    #     wholly back facing / silhouette: normal mask against the per-direction table
+    margins = np.sin(np.radians(_MARGINS_DEG[:-1])).astype(np.float32)
+    level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
+    level = jnp.where(inside, len(_MARGINS_DEG) - 1, level)
+    row = level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz)
+    tab = jnp.take(table, row, axis=0, mode="clip")  # (M, 24); 'clip' avoids the slow checked gather
+    mask = ctx.mask
+    nonempty = jnp.any(mask != 0, axis=1)
+    front = jnp.any((tab[:, :12] & mask) != 0, axis=1)
+    back = jnp.any((tab[:, 12:] & mask) != 0, axis=1)
+    backfacing = nonempty & ~front
+    silhouette = front & back
+    culled = (outside & ~inside) | backfacing
+
+    # --- stage 2: extent. projected diameter 2 f tan(asin s) = 2 f s / sqrt(1 - s^2), guarded at s -> 1
+    one_m = jnp.maximum(1.0 - s * s, 1e-12)
+    size_px = jnp.where(inside, size_cap, jnp.minimum(2.0 * focal * s * jax.lax.rsqrt(one_m), size_cap))
+    theta = size_px * dpp  # deg of the viewer's visual field
+
+    zero = jnp.zeros_like(r)
+    front_pt = depth > near
+    inv_depth = jnp.where(front_pt, 1.0 / jnp.where(front_pt, depth, 1.0), 0.0)
+    u = focal * x * inv_depth  # px from the image centre, x right
+    v = -focal * y * inv_depth  # y down
+    eye_vec = (u * kx, v * ky, jnp.ones_like(u))  # direction from the viewer's eye to the image point
+
+    # --- stage 3: eccentricity (deg), minimum over the gaze points
+    if has_gaze and need == "perceptual":
+        g = vp.gaze
+        ang = None
+        for k in range(g.shape[0]):
+            a_k = _angle_deg(eye_vec, (g[k, 0] * kx, g[k, 1] * ky, 1.0))
+            ang = a_k if ang is None else jnp.minimum(ang, a_k)
+        ecc = jnp.maximum(ang - 0.5 * theta - gaze_err, 0.0)
+        ecc = jnp.where(front_pt & ~inside, ecc, 0.0)
+    else:
+        ecc = zero
+
+    # --- stage 4: retinal velocity (deg/s) of the node's image between the previous view and this one
+    if has_motion and need == "perceptual":
+        _, px_, py_, pdepth = _project(ctx.cx, ctx.cy, ctx.cz, vp.prev_eye, vp.prev_rot)
+        pfront = pdepth > near
+        pinv = jnp.where(pfront, 1.0 / jnp.where(pfront, pdepth, 1.0), 0.0)
+        prev_vec = (vp.prev_focal * px_ * pinv * kx, -vp.prev_focal * py_ * pinv * ky, jnp.ones_like(u))
+        vel = jnp.where(front_pt & pfront, _angle_deg(eye_vec, prev_vec) * inv_dt, 0.0)
+    else:
+        vel = zero
+
+    # --- stage 5: contrast (Michelson of display luminances, cd/m2)
+    if need == "perceptual":
+        black, span, scene_lo, scene_hi = vp.lum[0], vp.lum[1], vp.lum[2], vp.lum[3]
+        cd = lambda rel: black + span * jnp.clip(rel, 0.0, 1.0)  # noqa: E731
+        mich = lambda a, b: _safe_div(jnp.abs(a - b), a + b)  # noqa: E731
+        lo = cd(ctx.lum_min)
+        c_own = mich(cd(ctx.lum_min + ctx.fold_delta), lo)
+        c_sil = jnp.maximum(mich(cd(ctx.lum_max), cd(scene_lo)), mich(cd(scene_hi), lo))
+        contrast = jnp.where(silhouette, jnp.maximum(c_sil, c_own), c_own)
+    else:
+        contrast = zero
+
+    # --- geometric error in pixels at the nearest point of the bounding sphere
+    if need == "geometric":
+        near_d = jnp.maximum(dist - r, near)
+        err_px = jnp.where(inside, size_cap, jnp.minimum(focal * ctx.geom_error / near_d, size_cap))
+    else:
+        err_px = zero
+    return _Terms(culled, backfacing, silhouette, size_px, theta, ecc, vel, contrast, err_px)
+
+
+def _propagate_culled(ctx: ScoringContext, culled):
+    """A culled node culls its whole subtree (level by level, top down)."""
+    lv = ctx.levels
+    for k in range(1, len(lv) - 1):
+        a, b = lv[k], lv[k + 1]
+        if b > a:
+            up = jnp.take(culled, ctx.parent[a:b], mode="clip", indices_are_sorted=True)
+            culled = culled.at[a:b].set(culled[a:b] | up)
+    return culled
+
+
+def _monotone(ctx: ScoringContext, key):
+    """key[parent] = max(key[parent], key[children]), deepest level first (seed 004 footnote 2).
+
+    Internal children of a node are contiguous (``first_child``, ``n_children``); levels whose nodes
+    have at most 8 internal children use 8 gathers, wider levels a segment maximum."""
+    lv, kmax = ctx.levels, ctx.level_kmax
+    for k in range(len(lv) - 2, 0, -1):
+        a, b = lv[k], lv[k + 1]
+        pa, pb = lv[k - 1], lv[k]
+        if b == a or pb == pa:
+            continue
+        if kmax[k - 1] <= 8:
+            first, cnt = ctx.first_child[pa:pb], ctx.n_children[pa:pb]
+            m = jnp.zeros(pb - pa, key.dtype)
+            for j in range(kmax[k - 1]):
+                got = jnp.take(key, first + j, mode="clip", indices_are_sorted=True)
+                m = jnp.maximum(m, jnp.where(j < cnt, got, 0.0))
+        else:
+            seg = ctx.parent[a:b] - pa
+            m = jax.ops.segment_max(key[a:b], seg, num_segments=pb - pa, indices_are_sorted=True)
+        key = key.at[pa:pb].set(jnp.maximum(key[pa:pb], m))
+    return key
+
+
+# ------------------------------------------------------------------ perceptual key through a contrast table
+#: contrast grid: log10 c from -4 to 0; eccentricity-to-size ratio grid: 0, then log10 from -3 to 5
+_TAB_C = (-4.0, 0.0, 512)
+_TAB_R = (-3.0, 5.0, 192)
+
+
+def _perceptual_table(model) -> jax.Array:
+    """K[j, i] = model.imperceptible_distance(c_j, 1 deg, r_i deg, 0), made conservative: non-decreasing
+    in c and, over each r cell, the larger of its two ends. Flat (Nc * Nr,) float32."""
+    lc0, lc1, nc = _TAB_C
+    lr0, lr1, nr = _TAB_R
+    c = np.logspace(lc0, lc1, nc)
+    rr = np.concatenate([[0.0], np.logspace(lr0, lr1, nr - 1)])
+    cg, rg = np.meshgrid(c, rr, indexing="ij")
+    k = np.asarray(jax.jit(lambda m, a, b: m.imperceptible_distance(a, jnp.ones_like(a), b, 0.0))(
+        model, jnp.asarray(cg, jnp.float32), jnp.asarray(rg, jnp.float32)), np.float64)
+    k = np.where(np.isfinite(k), k, 1e30)
+    k = np.maximum.accumulate(k, axis=0)  # non-decreasing in contrast
+    k[:, :-1] = np.maximum(k[:, :-1], k[:, 1:])  # cell [r_i, r_i+1): upper end of a monotone pair
+    return jnp.asarray(k.astype(np.float32).ravel())
+
+
+_TABLES: dict = {}
+
+
+def _model_table(model):
+    leaves = jax.tree_util.tree_leaves(model)
+    key = (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
+           tuple(np.asarray(x).tobytes() for x in leaves))
+    tab = _TABLES.get(key)
+    if tab is None:
+        if len(_TABLES) > 16:
+            _TABLES.clear()
+        tab = _TABLES[key] = _perceptual_table(model)
+    return tab
+
+
+def _table_key(ktab, c, theta, ecc):
+    """theta * K(c rounded up, ecc / theta rounded down): an upper bound of the exact key within the
+    table's resolution (1.8 % in contrast, 4.9 % in the eccentricity-to-size ratio)."""
+    lc0, lc1, nc = _TAB_C
+    lr0, lr1, nr = _TAB_R
+    pos_c = c > 0
+    lc = jnp.log10(jnp.where(pos_c, jnp.maximum(c, 10.0 ** lc0), 1.0))
+    j = jnp.clip(jnp.ceil((lc - lc0) * ((nc - 1) / (lc1 - lc0)) - 1e-4), 0, nc - 1).astype(jnp.int32)
+    pos_t = theta > 0
+    ratio = _safe_div(ecc, theta)
+    small = ratio < 10.0 ** lr0
+    lr = jnp.log10(jnp.where(small, 1.0, ratio))
+    i = jnp.where(small, 0, 1 + jnp.clip(jnp.floor((lr - lr0) * ((nr - 2) / (lr1 - lr0))), 0, nr - 2)).astype(jnp.int32)
+    return jnp.where(pos_c & pos_t, theta * jnp.take(ktab, j * nr + i, mode="clip"), 0.0)
+
+
+def _scatter_nodes(ctx, vals, fill):
+    out = jnp.full((ctx.n_nodes,), fill, vals.dtype)
+    return out.at[ctx.node].set(vals, indices_are_sorted=ctx.sorted_nodes, unique_indices=True, mode="promise_in_bounds")
+
+
+@eqx.filter_jit
+def _score_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
+    t = _terms(ctx, vp, table, has_gaze, has_motion, metric)
+    if metric == "perceptual":
+        if ktab is not None and not has_motion:
+            key = _table_key(ktab, t.contrast, t.theta, t.ecc)
+        else:
+            e = t.ecc if has_gaze else 0.0
+            v = t.vel if has_motion else 0.0
+            key = model.imperceptible_distance(t.contrast, t.theta, e, v)
+        key = jnp.where(jnp.isnan(key), 1e30, jnp.minimum(key, 1e30)).astype(jnp.float32)
+    elif metric == "size":
+        key = t.size_px
+    else:
+        key = t.err_px
+    culled = _propagate_culled(ctx, t.culled)
+    key = jnp.where(culled, 0.0, jnp.maximum(key, 0.0))
+    key = _monotone(ctx, key)
+    return _scatter_nodes(ctx, key, 0.0)
+
+
+@eqx.filter_jit
+def _terms_kernel(ctx, vp, table, has_gaze, has_motion):
+    t = _terms(ctx, vp, table, has_gaze, has_motion, "perceptual")
+    t = t._replace(culled=_propagate_culled(ctx, t.culled))
+    return jax.tree_util.tree_map(lambda a: _scatter_nodes(ctx, a, False if a.dtype == bool else 0.0), t)
+
+
+# =============================================================================== public API
+class NodeTerms(NamedTuple):
+    """Per-node terms of one view, tree order, numpy (N,) (leaves: all False / 0): ``culled`` (outside
+    the frustum, wholly back facing, or below such a node), ``backfacing``, ``silhouette`` (bool);
+    ``size_px`` projected bounding-sphere diameter (pixels); ``theta`` its visual angle (deg);
+    ``eccentricity`` (deg); ``velocity`` retinal velocity (deg/s); ``contrast`` Michelson contrast of
+    the fold."""
+
+    culled: np.ndarray
+    backfacing: np.ndarray
+    silhouette: np.ndarray
+    size_px: np.ndarray
+    theta: np.ndarray
+    eccentricity: np.ndarray
+    velocity: np.ndarray
+    contrast: np.ndarray
+
+
+def default_model():
+    """The perceptual model used when none is given: Kelly's abstract CSF (seed 001) with its defaults
+    (peak sensitivity 200 at 4 cycles/deg), else Manos-Sakrison."""
+    import pmetric
+
+    for name in ("KellyAbstract", "ManosSakrison"):
+        cls = getattr(pmetric, name, None)
+        if cls is not None:
+            return cls()
+    raise ValueError("score: no default perceptual model is available in pmetric; pass model=")
+
+
+def node_terms(tree, view) -> NodeTerms:
+    """Cull flags, silhouette flags, angular size, eccentricity, velocity and contrast of every node
+    for ``view`` (the inputs of the perceptual key; see the module docstring for units)."""
+    ctx = scoring_context(tree)
+    vp = _view_params(view, ctx)
+    t = _terms_kernel(ctx, vp, _table_device(), view.gaze_px is not None, view.previous is not None)
+    return NodeTerms(*(np.asarray(a) for a in (t.culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc,
+                                                t.vel, t.contrast)))
+
+
+def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = False) -> np.ndarray:
+    """Keys (N,) float32, one per node of ``tree`` for ``view``: larger = more important to keep unfolded.
+
+    ``metric="perceptual"``: ``model.imperceptible_distance`` of the fold (multiples of the current
+    viewing distance; <= 1 = imperceptible now; seed 004 section 5.3); ``model`` is a
+    :class:`pmetric.CSFModel` (default: :func:`default_model`). Without motion the key is read from a
+    per-model table (``k(c, theta, e) = theta K(c, e / theta)`` holds for every model by the definition
+    of the distance key) rounded to the conservative side; ``exact=True`` calls the model per node.
+    ``"size"``: projected bounding-sphere diameter (pixels). ``"geometric"``: projected fold error
+    (pixels). Leaves, culled nodes (outside the frustum, wholly back facing) and their subtrees get 0.
+    Keys are monotone: ``key[parent] >= key[child]`` (seed 004 footnote 2).
+    """
+    if metric not in METRICS:
+        raise ValueError(f"score: metric must be one of {METRICS}, got {metric!r}")
+    ctx = scoring_context(tree)
+    vp = _view_params(view, ctx)
+    ktab = None
+    if metric == "perceptual":
+        import pmetric
+
+        model = default_model() if model is None else model
+        if not isinstance(model, pmetric.CSFModel):
+            raise ValueError(f"score: model must be a pmetric.CSFModel, got {type(model).__name__}")
+        if not exact and view.previous is None:
+            ktab = _model_table(model)
+    else:
+        model = None
+    key = _score_kernel(ctx, vp, _table_device(), model, ktab, metric, view.gaze_px is not None,
+                        view.previous is not None)
+    return np.asarray(key)
+
+
+@functools.lru_cache(maxsize=1)
+def _table_device_cached(_key):
+    return jnp.asarray(silhouette_table())
+
+
+def _table_device():
+    cell_fn, bit_fn = _cell_layout()
+    return _table_device_cached((id(cell_fn), id(bit_fn)))
+
+
+def imperceptible_cut(tree, view, model=None, *, exact: bool = False):
+    """Fold every node whose fold is imperceptible from ``view``, top down (seed 001 section 4; seed
+    004 section 5.1): ``optim.threshold_cut`` at key 1 of the perceptual keys, ``stop_reason``
+    ``"imperceptible"`` (or ``"all_unfolded"`` when no fold is imperceptible). Returns an ``optim.Cut``."""
+    from ._cut import threshold_cut
+
+    keys = score(tree, view, model, "perceptual", exact=exact)
+    return threshold_cut(tree, keys, 1.0, monotone="trust")

@@ -1,0 +1,257 @@
+"""One viewpoint: camera, physical display geometry, gaze and motion (stage 2 of optim).
+
+A :class:`View` says everything the per-view scoring (``optim.score``) needs to turn a node's bounding
+sphere (object units) into the quantities a contrast-sensitivity model takes:
+
+* camera: ``eye``, ``target``, ``up`` (object units) and the vertical field of view ``fov_deg`` (deg)
+  of a pinhole camera rendering an image of ``width x height`` pixels;
+* physical geometry and photometry: a :class:`pmetric.Display` (pixel pitch in m, viewing distance
+  in m, black level and peak luminance in cd/m2). Image pixels are display pixels, the image centred on
+  the screen, so a size in pixels becomes a visual angle in degrees for *this* viewer;
+* gaze: one or more gaze points (pixels, or directions from the eye in object space), default the
+  screen centre; with several viewers a node's eccentricity is the smallest over the gaze points
+  (Luebke & Hallen 2001, seed 004 section 8.4). ``gaze=None`` means no gaze information: every node is
+  treated as foveal (eccentricity 0) and the eccentricity term costs nothing;
+* ``gaze_error_deg``: gaze uncertainty (deg) subtracted from every eccentricity (seed 001 section 4.4:
+  about 1 deg for an eye tracker, about 15 deg when head tracking stands in for it, seed 003);
+* ``previous`` and ``dt_s``: the view one time step (s) earlier, for the retinal velocity (deg/s) of
+  each node's image. Without a previous view the velocity term costs nothing.
+
+Pixel coordinates: ``(0, 0)`` is the top-left corner, x to the right, y down; the image centre is
+``(width / 2, height / 2)``. The camera looks along ``target - eye``; camera space has x right, y up
+and the viewing direction along -z.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import numpy as np
+
+__all__ = ["View"]
+
+
+def _vec3(name: str, x) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"View: {name} must be three numbers, got {x!r}") from None
+    if a.shape != (3,):
+        raise ValueError(f"View: {name} must be three numbers (shape (3,)), got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"View: {name} must be finite, got {a.tolist()}")
+    return a
+
+
+def _positive(name: str, x, *, upper: float | None = None) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"View: {name} must be a number, got {x!r}") from None
+    if not math.isfinite(v) or v <= 0 or (upper is not None and v >= upper):
+        rng = f"in (0, {upper})" if upper is not None else "> 0"
+        raise ValueError(f"View: {name} must be finite and {rng}, got {x!r}")
+    return v
+
+
+class View(eqx.Module):
+    """A camera, the display it is shown on, the viewer's gaze and (optionally) the previous view.
+
+    Fields (numpy, float64): ``eye``, ``target``, ``up`` (3,) object units; ``fov_deg`` vertical field
+    of view (deg); ``width``, ``height`` image size (pixels); ``display`` (:class:`pmetric.Display`);
+    ``gaze_px`` (G, 2) gaze points in pixels or None (no gaze: eccentricity 0 everywhere);
+    ``gaze_error_deg`` (deg); ``background`` relative luminance (0..1) of the background, used for
+    silhouette contrast; ``near`` near-plane distance (object units); ``previous`` (View or None) and
+    ``dt_s`` (s).
+
+    ``gaze`` may be ``"center"`` (default: the screen centre), None, an array (G, 2) of pixel
+    coordinates, or an array (G, 3) of gaze directions from the eye in object space (each must point
+    in front of the camera).
+    """
+
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray
+    fov_deg: float = eqx.field(static=True)
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+    display: object
+    gaze_px: np.ndarray | None
+    gaze_error_deg: float = eqx.field(static=True)
+    background: float = eqx.field(static=True)
+    near: float = eqx.field(static=True)
+    previous: "View | None"
+    dt_s: float = eqx.field(static=True)
+
+    def __init__(
+        self,
+        eye,
+        target=(0.0, 0.0, 0.0),
+        up=(0.0, 1.0, 0.0),
+        fov_deg: float | None = None,
+        image_size: tuple[int, int] | None = None,
+        display=None,
+        gaze="center",
+        gaze_error_deg: float = 1.0,
+        previous: "View | None" = None,
+        dt_s: float | None = None,
+        background: float = 0.0,
+        near: float | None = None,
+    ):
+        import pmetric
+
+        self.eye = _vec3("eye", eye)
+        self.target = _vec3("target", target)
+        self.up = _vec3("up", up)
+        fwd = self.target - self.eye
+        if np.linalg.norm(fwd) <= 1e-12 * max(1.0, np.linalg.norm(self.eye)):
+            raise ValueError("View: eye and target coincide; the viewing direction is undefined")
+        if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * max(np.linalg.norm(self.up), 1e-300):
+            raise ValueError("View: up must not be parallel to the viewing direction (target - eye)")
+        if display is None:
+            display = pmetric.Display.default()
+        if not isinstance(display, pmetric.Display):
+            raise ValueError(f"View: display must be a pmetric.Display, got {type(display).__name__}")
+        self.display = display
+        if image_size is None:
+            image_size = display.resolution
+        try:
+            w, h = (int(s) for s in image_size)
+        except (TypeError, ValueError):
+            raise ValueError(f"View: image_size must be two positive integers (width, height), got {image_size!r}") from None
+        if w <= 0 or h <= 0:
+            raise ValueError(f"View: image_size must be two positive integers (width, height), got {image_size!r}")
+        self.width, self.height = w, h
+        if fov_deg is None:  # the physically correct camera: the image spans what the viewer sees of it
+            py = float(display.height) / display.resolution[1]
+            fov_deg = math.degrees(2 * math.atan(0.5 * h * py / float(display.distance)))
+        self.fov_deg = _positive("fov_deg (vertical field of view, deg)", fov_deg, upper=180.0)
+        ge = float(gaze_error_deg)
+        if not math.isfinite(ge) or ge < 0:
+            raise ValueError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
+        self.gaze_error_deg = ge
+        bg = float(background)
+        if not (0.0 <= bg <= 1.0):
+            raise ValueError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
+        self.background = bg
+        dist = float(np.linalg.norm(fwd))
+        self.near = _positive("near (object units)", near) if near is not None else 1e-4 * dist
+        if previous is not None:
+            if not isinstance(previous, View):
+                raise ValueError(f"View: previous must be a View, got {type(previous).__name__}")
+            if dt_s is None:
+                raise ValueError("View: a previous view needs dt_s, the time step in seconds")
+            self.dt_s = _positive("dt_s (s)", dt_s)
+        else:
+            if dt_s is not None:
+                raise ValueError("View: dt_s given without a previous view")
+            self.dt_s = 0.0
+        self.previous = previous
+        self.gaze_px = self._gaze_pixels(gaze)
+
+    @classmethod
+    def framing(cls, vertices, object_deg: float = 30.0, direction=(0.0, 0.0, 1.0), up=(0.0, 1.0, 0.0),
+                **kw) -> "View":
+        """A view looking at the centre of ``vertices`` (V, 3) from ``direction`` such that their bounding
+        sphere (about the bounding-box centre) subtends ``object_deg`` degrees of the viewer's visual
+        field (default 30 deg: seed 004's study, an object on a 46 deg screen). ``kw`` go to ``View``
+        (``display``, ``gaze``, ``gaze_error_deg`` ...); the camera's field of view is the display's."""
+        v = np.asarray(vertices, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise ValueError(f"View.framing: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+        deg = _positive("object_deg (deg)", object_deg, upper=180.0)
+        d = _vec3("direction", direction)
+        if np.linalg.norm(d) == 0:
+            raise ValueError("View.framing: direction must be nonzero")
+        centre = 0.5 * (v.min(0) + v.max(0))
+        radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
+        radius = radius if radius > 0 else 1.0
+        dist = radius / math.sin(math.radians(deg) / 2)
+        eye = centre + d / np.linalg.norm(d) * dist
+        up = _vec3("up", up)
+        if np.linalg.norm(np.cross(d, up)) < 1e-6 * np.linalg.norm(d) * max(np.linalg.norm(up), 1e-300):
+            up = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 * np.linalg.norm(d) else np.array([0.0, 0.0, 1.0])
+        return cls(eye=eye, target=centre, up=up, **kw)
+
+    # ------------------------------------------------------------------ camera
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) world -> camera rotation; rows are the camera's right, up and back (-forward) axes."""
+        fwd = self.target - self.eye
+        fwd = fwd / np.linalg.norm(fwd)
+        right = np.cross(fwd, self.up)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        return np.stack([right, up, -fwd])
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels: (height / 2) / tan(fov_deg / 2)."""
+        return 0.5 * self.height / math.tan(math.radians(self.fov_deg) / 2)
+
+    @property
+    def pixel_pitch_m(self) -> tuple[float, float]:
+        """(horizontal, vertical) size of one pixel on the display, m."""
+        px, py = self.display.pixel_pitch
+        return float(px), float(py)
+
+    @property
+    def distance_m(self) -> float:
+        """Viewing distance from the eye to the screen centre, m."""
+        return float(self.display.distance)
+
+    @property
+    def degrees_per_pixel(self) -> float:
+        """Visual angle of one pixel at the screen centre (deg)."""
+        return float(self.display.degrees_per_pixel())
+
+    def project(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """World points (..., 3) -> (pixel coordinates (..., 2), depth along the view axis (...)).
+
+        Depth is in object units; points with depth <= 0 are behind the camera (their pixels are inf).
+        """
+        p = (np.asarray(points, dtype=np.float64) - self.eye) @ self.rotation.T
+        depth = -p[..., 2]
+        front = depth > 0
+        s = self.focal_px / np.where(front, depth, 1.0)
+        xy = np.stack([0.5 * self.width + p[..., 0] * s, 0.5 * self.height - p[..., 1] * s], axis=-1)
+        xy = np.where(front[..., None], xy, np.inf)
+        return xy, depth
+
+    def visual_angle_px(self, a, b) -> np.ndarray:
+        """Visual angle (deg) between two pixel positions (..., 2) as seen by the viewer of the display."""
+        pa, pb = self._eye_vectors(np.asarray(a, float)), self._eye_vectors(np.asarray(b, float))
+        cr = np.linalg.norm(np.cross(pa, pb), axis=-1)
+        return np.degrees(np.arctan2(cr, np.sum(pa * pb, axis=-1)))
+
+    def _eye_vectors(self, xy):
+        px, py = self.pixel_pitch_m
+        x = (xy[..., 0] - 0.5 * self.width) * px
+        y = (xy[..., 1] - 0.5 * self.height) * py
+        return np.stack([x, y, np.full_like(x, self.distance_m)], axis=-1)
+
+    # ------------------------------------------------------------------ gaze
+    def _gaze_pixels(self, gaze):
+        if gaze is None:
+            return None
+        if isinstance(gaze, str):
+            if gaze != "center":
+                raise ValueError(f"View: gaze must be 'center', None, (G, 2) pixels or (G, 3) directions; got {gaze!r}")
+            return np.array([[0.5 * self.width, 0.5 * self.height]])
+        try:
+            g = np.asarray(gaze, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got {gaze!r}") from None
+        if g.ndim == 1:
+            g = g[None]
+        if g.ndim != 2 or g.shape[0] == 0 or g.shape[1] not in (2, 3):
+            raise ValueError(f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got shape {g.shape}")
+        if not np.isfinite(g).all():
+            raise ValueError("View: gaze contains a non-finite value")
+        if g.shape[1] == 3:
+            xy, depth = self.project(self.eye + g)
+            if (depth <= 0).any():
+                raise ValueError("View: a gaze direction points behind the camera")
+            g = xy
+        return g

@@ -1,0 +1,457 @@
+"""Classic analytic contrast-sensitivity functions, with exact inversions.
+
+* :class:`ManosSakrison` -- Manos & Sakrison 1974 (IEEE Trans. Inf. Theory 20(4)), as printed in
+  Reddy 2001 (seed 000) Eq 1 with the published constant 0.114.
+* :class:`KellyAbstract` -- Kelly 1975's abstract CSF ``alpha^2 e^-alpha`` scaled by delta with the
+  temporal-retina cortical magnification (Luebke et al. 2000, seed 001 Eq 1-2, 5).
+* :class:`KellySpatioTemporal` -- Kelly 1979 (JOSA 69(10):1340) stabilized spatio-temporal CSF (seed 001
+  Eq 4) and Reddy's refit (seed 000 Eq 2).
+* :class:`RovamoVirsu` -- Rovamo & Virsu 1979 (Exp. Brain Res. 37:495) cortical magnification
+  (seed 000 Eq 3), and :class:`Eccentric` which applies a magnification to any foveal CSF.
+
+Units: f cycles/deg, e deg, v deg/s, c Michelson contrast (0..1), theta deg.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from ._base import CSFModel, _is_tracer, _log_guard, check_inputs
+from ._inverse import implicit_root, lambertw_m1
+
+__all__ = ["ManosSakrison", "KellyAbstract", "KellySpatioTemporal", "RovamoVirsu", "Eccentric"]
+
+
+def _param(value, name: str, *, positive: bool = True):
+    """A model constant as a float array; concrete values are checked (finite, > 0)."""
+    arr = jnp.asarray(value, dtype=jnp.result_type(float))
+    if not _is_tracer(arr):
+        a = np.asarray(arr)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+        if positive and np.any(a <= 0):
+            raise ValueError(f"{name} must be > 0, got {value!r}")
+    return arr
+
+
+def _pow_pos(x, p):
+    """x**p for x >= 0 with finite value and gradient at x = 0 (double-where)."""
+    pos = x > 0
+    xs = jnp.where(pos, x, 1.0)
+    return jnp.where(pos, jnp.exp(p * jnp.log(xs)), 0.0)
+
+
+# --------------------------------------------------------------------------- Manos-Sakrison
+_MS_A = 0.0192
+_MS_XP = 0.899564265442084  # argmax of (a + x) exp(-x^1.1): solves 1/(a+x) = 1.1 x^0.1
+_MS_LOGAMAX = math.log(2.6 * (_MS_A + _MS_XP)) - _MS_XP**1.1  # ln A_max, A_max = 0.98088
+_MS_GMAX = math.log(_MS_A + _MS_XP) - _MS_XP**1.1
+_MS_SMAX = 60.0  # start polynomial fitted for s = ln(P c) in [0, 60]
+
+
+def _ms_start_coeffs(deg: int = 10):
+    """Chebyshev coefficients of the falling-limb root x(s) in r = sqrt(s), s = ln(P c) in [0, 60].
+
+    Only a starting point: two Newton steps follow (its error is < 3e-6 in x)."""
+    r = np.linspace(0.0, math.sqrt(_MS_SMAX), 400)
+    s = r * r
+    lo = np.full_like(r, _MS_XP)
+    hi = np.full_like(r, 200.0)
+    for _ in range(80):
+        m = 0.5 * (lo + hi)
+        ok = np.log(_MS_A + m) - m**1.1 - _MS_GMAX + s >= 0
+        lo = np.where(ok, m, lo)
+        hi = np.where(ok, hi, m)
+    t = r / math.sqrt(_MS_SMAX) * 2.0 - 1.0
+    cheb = np.polynomial.chebyshev.chebfit(t, lo, deg)
+    return tuple(float(x) for x in cheb)
+
+
+_MS_CHEB = _ms_start_coeffs()
+
+
+def _ms_log_shape(x):
+    """ln[(a + x) exp(-x^1.1)] - ln[(a + x_p) exp(-x_p^1.1)] <= 0 for x = b f >= 0."""
+    x = jnp.minimum(x, 1e30)
+    return jnp.log(_MS_A + x) - _pow_pos(x, 1.1) - _MS_GMAX
+
+
+class ManosSakrison(CSFModel):
+    """Manos & Sakrison (1974) foveal CSF, seed 000 Eq 1 (Reddy 2001) with the published constant.
+
+    Normalized shape ``A(f) = 2.6 (0.0192 + b f) exp(-(b f)^1.1)`` with ``b = 0.114`` (``printed_constant=True``
+    uses the seed's misprint 0.144); A peaks at 0.9809 at 7.89 cycles/deg. Absolute sensitivity
+    ``S(f) = peak_sensitivity * A(f) / A_max``. Default ``peak_sensitivity = 250``: with it contrast 1
+    is visible up to 61 cycles/deg, matching the 60 cycles/deg acuity limit of seed 000 (Reddy's G(0)).
+    No eccentricity or velocity dependence (``e`` and ``v`` are accepted and ignored; wrap it in
+    :class:`Eccentric` for an eccentricity term).
+
+    Domain: f in [0, 1e30] cycles/deg (values and gradients finite, f = 0 included); c in [0, 1].
+    ``threshold_frequency`` is exact for ``peak_sensitivity * c`` up to e^60.
+    """
+
+    peak_sensitivity: jax.Array
+    printed_constant: bool = eqx.field(static=True, default=False)
+
+    inputs: ClassVar[tuple[str, ...]] = ("f",)
+    param_bounds: ClassVar[dict] = {"peak_sensitivity": (1e-6, None)}
+
+    def __init__(self, peak_sensitivity=250.0, printed_constant: bool = False):
+        self.peak_sensitivity = _param(peak_sensitivity, "ManosSakrison.peak_sensitivity")
+        self.printed_constant = bool(printed_constant)
+
+    @property
+    def _b(self) -> float:
+        return 0.144 if self.printed_constant else 0.114
+
+    @staticmethod
+    def shape(f, printed_constant: bool = False):
+        """The normalized shape A(f) of seed 000 Eq 1 (peak 0.9809 at 7.89 cycles/deg); f cycles/deg."""
+        b = 0.144 if printed_constant else 0.114
+        x = jnp.minimum(jnp.asarray(f, jnp.result_type(f, float)) * b, 1e30)
+        return 2.6 * (_MS_A + x) * jnp.exp(-_pow_pos(x, 1.1))
+
+    def log_sensitivity(self, f, e=0.0, v=0.0):
+        f = jnp.asarray(f)
+        logp = jnp.log(self.peak_sensitivity)
+        out = logp + _ms_log_shape(self._b * f)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(e), jnp.shape(v)))
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        """S(f) = peak_sensitivity A(f)/A_max (e, v ignored); broadcast shape of f, e, v."""
+        f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        return jnp.exp(self.log_sensitivity(f, e, v))
+
+    def _peak_frequency(self, e, v):
+        shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
+        dtype = jnp.result_type(e, v, self.peak_sensitivity, float)
+        return jnp.full(shape, _MS_XP / self._b, dtype)
+
+    def _threshold_frequency(self, c, e, v):
+        s = _log_guard(c) + jnp.log(self.peak_sensitivity)  # ln(c S_peak): visible iff >= 0
+        s = jnp.broadcast_to(s, jnp.broadcast_shapes(s.shape, e.shape, v.shape))
+        visible = s >= 0
+        ss = lax.stop_gradient(jnp.where(visible, s, 0.0))
+        # start: Chebyshev fit in r = sqrt(s) (clipped to the fitted range), then Newton in x.
+        r = jnp.sqrt(jnp.minimum(ss, _MS_SMAX))
+        t = r * (2.0 / math.sqrt(_MS_SMAX)) - 1.0
+        x = _clenshaw(t, _MS_CHEB)
+
+        def g(x, s):
+            return _ms_log_shape(x) + s
+
+        for _ in range(3):
+            xs = jnp.maximum(x, _MS_XP * (1 + 1e-6))
+            gx = g(xs, ss)
+            dg = 1.0 / (_MS_A + xs) - 1.1 * _pow_pos(xs, 0.1)
+            x = jnp.maximum(xs - gx / dg, _MS_XP)
+        x = implicit_root(lambda xx: g(xx, s), x, mask=visible)
+        return jnp.where(visible, x / self._b, 0.0)
+
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """Closed in terms of the threshold frequency (no e, v dependence): k = 2 theta f*(c).
+        See :meth:`CSFModel.imperceptible_distance` for the definition; theta in deg."""
+        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        return 2.0 * theta * self._threshold_frequency(c, e, v)
+
+
+def _clenshaw(t, coeffs):
+    """Chebyshev series sum_k coeffs[k] T_k(t), elementwise (Clenshaw recurrence)."""
+    b1 = jnp.zeros_like(t)
+    b2 = jnp.zeros_like(t)
+    for ck in coeffs[:0:-1]:
+        b1, b2 = 2.0 * t * b1 - b2 + ck, b1
+    return t * b1 - b2 + coeffs[0]
+
+
+# --------------------------------------------------------------------------- Kelly abstract
+_E2_4 = math.e**2 / 4.0  # 1 / max(alpha^2 e^-alpha), attained at alpha = 2
+
+
+class KellyAbstract(CSFModel):
+    """Kelly's abstract CSF with delta scaling and cortical magnification (seed 001 Eq 1-5).
+
+    ``1/c_T = delta alpha^2 exp(-alpha)``, ``alpha = 2 (1 + 0.29 e) f / f0``. With ``f0 = 2`` this is
+    the seed's ``alpha = (1 + 0.29 e) f`` exactly; ``f0`` (cycles/deg) is the foveal peak frequency,
+    a fittable frequency scale (seed 001 measured f in units of its own display; its ``delta = 0.4``
+    makes every contrast below 1 invisible when f is in cycles/deg). Defaults: ``f0 = 4`` cycles/deg
+    (a realistic foveal peak) and ``delta = 200 e^2 / 4 = 369.45`` so that the peak sensitivity is 200.
+    The peak sensitivity is ``4 delta / e^2`` at every eccentricity; the peak frequency is
+    ``f0 / (1 + 0.29 e)``. No velocity term (``v`` accepted and ignored).
+
+    Inversions are closed forms through the lower Lambert W branch:
+    ``alpha* = -2 W_{-1}(-1 / (2 sqrt(delta c)))`` on the falling limb (alpha >= 2).
+
+    Domain: f in [0, 1e30] cycles/deg, e in [0, 1e4] deg, c in [0, 1]; values and gradients finite.
+    """
+
+    delta: jax.Array
+    f0: jax.Array
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e")
+    param_bounds: ClassVar[dict] = {"delta": (1e-6, None), "f0": (1e-3, None)}
+
+    def __init__(self, delta=200.0 * _E2_4, f0=4.0):
+        self.delta = _param(delta, "KellyAbstract.delta")
+        self.f0 = _param(f0, "KellyAbstract.f0")
+
+    def _alpha(self, f, e):
+        return 2.0 * (1.0 + 0.29 * e) * jnp.minimum(f, 1e30) / self.f0
+
+    def log_sensitivity(self, f, e=0.0, v=0.0):
+        a = self._alpha(jnp.asarray(f), jnp.asarray(e))
+        out = jnp.log(self.delta) + 2.0 * _log_guard(a) - a
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        """S = delta alpha^2 exp(-alpha), alpha = 2 (1 + 0.29 e) f / f0; broadcast shape of f, e, v."""
+        f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        a = self._alpha(f, e)
+        out = self.delta * a * a * jnp.exp(-a)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
+
+    def _peak_frequency(self, e, v):
+        out = self.f0 / (1.0 + 0.29 * e)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
+
+    def _alpha_star(self, c):
+        """Falling-limb alpha where delta c alpha^2 e^-alpha = 1; visible mask (delta c >= e^2/4)."""
+        dc = self.delta * c
+        visible = dc >= _E2_4
+        dcs = jnp.where(visible, dc, 1.0)
+        x = jnp.where(visible, -0.5 * lax.rsqrt(dcs), -0.25)
+        return -2.0 * lambertw_m1(x), visible
+
+    def is_perceptible(self, c, f, e=0.0, v=0.0):
+        """c >= c_T(max(f, f_peak)); fused closed form (see :meth:`CSFModel.is_perceptible`)."""
+        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        a = jnp.maximum(self._alpha(f, e), 2.0)
+        out = _log_guard(c) + jnp.log(self.delta) + 2.0 * jnp.log(a) - a >= 0
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
+
+    def _threshold_frequency(self, c, e, v):
+        a, visible = self._alpha_star(c)
+        f = a * self.f0 / (2.0 * (1.0 + 0.29 * e))
+        out = jnp.where(visible, f, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
+
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """Closed form: at distance multiple k, alpha(k) = (k + 0.29 e) / (theta f0) grows with k, so
+        ``k = max(0, theta f0 alpha* - 0.29 e)`` (0 where c is invisible even at the peak).
+        See :meth:`CSFModel.imperceptible_distance` for the definition; theta in deg."""
+        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        a, visible = self._alpha_star(c)
+        k = jnp.maximum(theta * self.f0 * a - 0.29 * e, 0.0)
+        out = jnp.where(visible, k, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
+
+
+# --------------------------------------------------------------------------- Kelly spatio-temporal
+_KELLY_CONSTANTS = {
+    # a0, a1 in [a0 + a1 |log10(v/3)|^3] v f^2 exp(-b f (v + 2))
+    "kelly1979": (6.1, 7.3, 2.0 / 45.9),  # seed 001 Eq 4 (Kelly 1979)
+    "reddy": (250.1, 299.3, 5.5 * math.log(10.0) / 45.9),  # seed 000 Eq 2: 10^(-5.5 f (v+2)/45.9)
+}
+
+
+class KellySpatioTemporal(CSFModel):
+    """Kelly (1979) stabilized spatio-temporal CSF: sensitivity to a grating drifting at ``v`` deg/s.
+
+    ``S(f, v) = [a0 + a1 |log10(v/3)|^3] v f^2 exp(-b f (v + 2))``. ``constants="kelly1979"``:
+    a0 = 6.1, a1 = 7.3, b = 2/45.9 (seed 001 Eq 4); ``"reddy"``: a0 = 250.1, a1 = 299.3,
+    b = 5.5 ln(10)/45.9 (seed 000 Eq 2, ``10^(-5.5 f (v+2)/45.9)``). The fit is valid for v > 0.1 deg/s:
+    velocities below 0.1 deg/s (including 0, a stabilized/tracked target) are treated as 0.1 deg/s.
+    Peak frequency ``2 / (b (v + 2))`` (9.18 cycles/deg at v = 3 for Kelly's constants). No eccentricity
+    term (``e`` ignored; wrap in :class:`Eccentric`).
+
+    ``threshold_frequency`` is a closed form (Lambert W, as for :class:`KellyAbstract` with
+    ``delta = K(v) v / (b (v+2))^2``). ``imperceptible_distance`` uses the generic largest-crossing
+    solver (perceptibility is not monotone in distance through the velocity term) with a closed form
+    for ``v = 0`` and where the answer lies beyond ``k = 10 v`` (retinal velocity clamped there).
+
+    Domain: f in [0, 1e30], v in [0, 1e4]; values and gradients finite.
+    """
+
+    a0: jax.Array
+    a1: jax.Array
+    b: jax.Array
+    constants: str = eqx.field(static=True, default="kelly1979")
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "v")
+    param_bounds: ClassVar[dict] = {"a0": (1e-6, None), "a1": (0.0, None), "b": (1e-6, None)}
+
+    def __init__(self, constants: str = "kelly1979", *, a0=None, a1=None, b=None):
+        if constants not in _KELLY_CONSTANTS:
+            raise ValueError(f"unknown Kelly constant set {constants!r}; choose one of {sorted(_KELLY_CONSTANTS)}")
+        d0, d1, db = _KELLY_CONSTANTS[constants]
+        self.constants = constants
+        self.a0 = _param(d0 if a0 is None else a0, "KellySpatioTemporal.a0")
+        self.a1 = _param(d1 if a1 is None else a1, "KellySpatioTemporal.a1", positive=False)
+        self.b = _param(db if b is None else b, "KellySpatioTemporal.b")
+
+    @staticmethod
+    def _v(v):
+        return jnp.clip(v, 0.1, 1e30)
+
+    def _log_amp(self, v):
+        """ln(K(v) v) for the clamped velocity."""
+        lv = jnp.abs(jnp.log10(v / 3.0))
+        return jnp.log(self.a0 + self.a1 * lv * lv * lv) + jnp.log(v)
+
+    def log_sensitivity(self, f, e=0.0, v=0.0):
+        f = jnp.minimum(jnp.asarray(f), 1e30)
+        vv = self._v(jnp.asarray(v))
+        out = self._log_amp(vv) + 2.0 * _log_guard(f) - self.b * f * (vv + 2.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(e)))
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        """S(f, v) of Kelly 1979 (v clamped to >= 0.1 deg/s); broadcast shape of f, e, v."""
+        f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        return jnp.exp(self.log_sensitivity(f, e, v))
+
+    def _peak_frequency(self, e, v):
+        out = 2.0 / (self.b * (self._v(v) + 2.0))
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(e)))
+
+    def is_perceptible(self, c, f, e=0.0, v=0.0):
+        """Fused closed form of :meth:`CSFModel.is_perceptible`."""
+        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        vv = self._v(v)
+        beta = self.b * (vv + 2.0)
+        a = jnp.maximum(beta * jnp.minimum(f, 1e30), 2.0)  # alpha = beta f, clamped at the peak
+        out = _log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta) + 2.0 * jnp.log(a) - a >= 0
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, e.shape))
+
+    def _threshold_frequency(self, c, e, v):
+        vv = self._v(v)
+        beta = self.b * (vv + 2.0)
+        log_dc = _log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta)  # ln(delta_eff c)
+        visible = log_dc >= math.log(_E2_4)
+        x = jnp.where(visible, -0.5 * jnp.exp(-0.5 * jnp.where(visible, log_dc, 0.0)), -0.25)
+        out = jnp.where(visible, -2.0 * lambertw_m1(x) / beta, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, e.shape))
+
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """See :meth:`CSFModel.imperceptible_distance`. With ``k0 = 2 theta f*(c, 0.1)``: where
+        ``v = 0`` or ``k0 >= 10 v`` (the retinal velocity v/k is clamped to 0.1 there and perceptibility
+        falls monotonically with k) the answer is ``k0``; elsewhere the generic largest-crossing search."""
+        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        k0 = 2.0 * theta * self._threshold_frequency(c, e, jnp.zeros_like(v))
+        easy = k0 >= 10.0 * v
+        if not _is_tracer(easy) and bool(np.all(np.asarray(easy))):
+            return jnp.broadcast_to(k0, jnp.broadcast_shapes(k0.shape, v.shape))
+        kg = CSFModel.imperceptible_distance(self, c, theta, e, v)
+        return jnp.where(easy, k0, kg)
+
+
+# --------------------------------------------------------------------------- Rovamo-Virsu
+class RovamoVirsu(eqx.Module):
+    """Rovamo & Virsu (1979) cortical magnification factor relative to the fovea (seed 000 Eq 3).
+
+    ``form="cubic"``: ``M(e) = 1 / (1 + k1 e + k3 e^3)`` with k1 = 0.29, k3 = 0.000012 (published for
+    0 <= e <= 80 deg; evaluated beyond). ``form="linear"``: ``M(e) = 1 / (1 + k1 e)``, the most sensitive
+    (temporal) retina used by seed 001 Eq 3. ``e`` in deg, result dimensionless in (0, 1].
+    Call it: ``RovamoVirsu()(e)``.
+    """
+
+    k1: jax.Array
+    k3: jax.Array
+    form: str = eqx.field(static=True, default="cubic")
+
+    param_bounds: ClassVar[dict] = {"k1": (0.0, None), "k3": (0.0, None)}
+
+    def __init__(self, form: str = "cubic", k1=0.29, k3=0.000012):
+        if form not in ("cubic", "linear"):
+            raise ValueError(f"unknown RovamoVirsu form {form!r}; choose 'cubic' or 'linear'")
+        self.form = form
+        self.k1 = _param(k1, "RovamoVirsu.k1", positive=False)
+        self.k3 = _param(k3, "RovamoVirsu.k3", positive=False)
+
+    def inverse(self, e):
+        """1 / M(e) = 1 + k1 e (+ k3 e^3); e in deg (any shape)."""
+        e = jnp.minimum(jnp.asarray(e), 1e9)
+        out = 1.0 + self.k1 * e
+        if self.form == "cubic":
+            out = out + self.k3 * e * e * e
+        return out
+
+    def __call__(self, e):
+        """M(e), e in deg (>= 0, checked outside jit)."""
+        (e,) = check_inputs("RovamoVirsu", e=e)
+        return 1.0 / self.inverse(e)
+
+
+class Eccentric(CSFModel):
+    """Gives a foveal CSF an eccentricity dependence by cortical magnification (spatial scaling).
+
+    ``S(f, e, v) = csf.sensitivity(f / M(e), 0, v)``: a grating at eccentricity ``e`` is seen like a
+    foveal grating of frequency ``f / M(e)`` (Rovamo & Virsu 1979; seed 001 Eq 5 uses exactly this with
+    the linear M). The peak frequency becomes ``M(e) f_peak``; ``threshold_frequency`` is
+    ``M(e) csf.threshold_frequency(c, 0, v)``. ``imperceptible_distance`` is closed (a cubic solved by
+    Newton from the right) when the inner model has no velocity term, generic otherwise.
+    """
+
+    csf: CSFModel
+    magnification: RovamoVirsu
+
+    param_bounds: ClassVar[dict] = {}
+
+    def __init__(self, csf: CSFModel, magnification: RovamoVirsu | None = None):
+        if not isinstance(csf, CSFModel):
+            raise ValueError(f"Eccentric needs a CSFModel, got {type(csf).__name__}")
+        if "e" in type(csf).inputs:
+            raise ValueError(f"{type(csf).__name__} already depends on eccentricity; wrap a foveal CSF")
+        self.csf = csf
+        self.magnification = RovamoVirsu() if magnification is None else magnification
+
+    @property
+    def inputs(self):  # type: ignore[override]
+        return tuple(dict.fromkeys(tuple(type(self.csf).inputs) + ("e",)))
+
+    def log_sensitivity(self, f, e=0.0, v=0.0):
+        fs = jnp.asarray(f) * self.magnification.inverse(jnp.asarray(e))
+        return self.csf.log_sensitivity(fs, jnp.zeros_like(jnp.asarray(e)), v)
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        """csf S(f / M(e), 0, v); broadcast shape of f, e, v."""
+        f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        return jnp.exp(self.log_sensitivity(f, e, v))
+
+    def _peak_frequency(self, e, v):
+        return self.csf._peak_frequency(jnp.zeros_like(e), v) / self.magnification.inverse(e)
+
+    def _threshold_frequency(self, c, e, v):
+        return self.csf._threshold_frequency(c, jnp.zeros_like(e), v) / self.magnification.inverse(e)
+
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """See :meth:`CSFModel.imperceptible_distance`. Without a velocity term: perceptible at k iff
+        ``phi(k) = k + k1 e + k3 e^3 / k^2 <= F = 2 theta f*(c)`` (the inner threshold frequency);
+        phi is convex with minimum ``1.5 k_m + k1 e`` at ``k_m = (2 k3)^(1/3) e``, and the largest root
+        is found by Newton from the upper bound ``F - k1 e`` (monotone convergence, 8 steps)."""
+        if "v" in type(self.csf).inputs:
+            return CSFModel.imperceptible_distance(self, c, theta, e, v)
+        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        F = 2.0 * theta * self.csf._threshold_frequency(c, jnp.zeros_like(e), v)
+        k1, k3 = self.magnification.k1, self.magnification.k3
+        ku = F - k1 * e
+        if self.magnification.form == "linear":
+            return jnp.maximum(ku, 0.0)
+        e3 = k3 * e * e * e
+        km = jnp.cbrt(2.0 * k3) * e
+        feasible = (1.5 * km + k1 * e <= F) & (ku > 0)
+        k = lax.stop_gradient(jnp.where(feasible, ku, 1.0))
+        Fs, e3s, k1es = lax.stop_gradient(F), lax.stop_gradient(e3), lax.stop_gradient(k1 * e)
+        for _ in range(8):
+            phi = k + k1es + e3s / (k * k) - Fs
+            dphi = 1.0 - 2.0 * e3s / (k * k * k)
+            k = jnp.where(feasible, jnp.maximum(k - phi / jnp.maximum(dphi, 1e-6), km), k)
+        g = lambda kk: F - (kk + k1 * e + e3 / (kk * kk))  # noqa: E731  (>= 0 where perceptible)
+        k = implicit_root(g, k, mask=feasible)
+        return jnp.where(feasible, k, 0.0)

@@ -1,0 +1,257 @@
+"""The achromatic stelaCSF (Mantiuk, Ashraf & Chapiro 2022).
+
+Reference: R. K. Mantiuk, M. Ashraf, A. Chapiro, "stelaCSF: a unified model of contrast sensitivity as
+the function of spatio-temporal frequency, eccentricity, luminance and area", ACM Transactions on
+Graphics 41(4):145, 2022, doi:10.1145/3528223.3530115. Port of the achromatic part of
+``CSF_stelaCSF.m`` (gfxdisp/stelaCSF, parameters "fitted on run stela-csf_all_2022-04-16", the release
+used for ``../shared/data/csf/reference_values_achromatic.csv``; a port matches that table within 1e-3
+in log10 sensitivity).
+
+The model (rho: spatial frequency, cycles/deg; omega: temporal frequency, Hz; L: luminance, cd/m2;
+A: stimulus area, deg2; e: eccentricity, deg)::
+
+    S(rho, omega, L, A, e) = [R_sust(omega) S_sust(rho, L, A) + R_trans(omega) S_trans(rho, L, A)]
+                             * 10^(-(d + rho d_f) e)
+    R_sust  = exp(-omega^beta_sust / sigma_sust)
+    R_trans = exp(-(omega^beta_trans - omega_0^beta_trans)^2 / sigma_trans)
+    S_x     = S_max(L) * LP(rho) * sqrt(Ac / (1 + Ac / A)) * rho,   Ac = A0 / (1 + (rho / f0)^2)
+    LP      = 10^(-(log10 rho - log10 f_max(L))^2 / 2^bw), raised to 1 - a below f_max (truncated log-parabola)
+
+with the luminance dependences S_max(L) = p0 (1 + p1/L)^-p2 (1 - (1 + p3/L)^-p4) (sustained),
+p1 L^p0 (transient) and f_max(L) = p0 (1 + p1/L)^-p2 (sustained), constant (transient). The drop with
+eccentricity interpolates between the temporal/superior/inferior (``ecc_drop``, ``ecc_drop_f``) and the
+nasal (``*_nasal``) visual field: alpha = min(1, |vis_field - 180| / 90).
+
+Everything is evaluated in log space (``logaddexp`` for the sum of the two channels, ``log1p`` /
+``expm1`` for the luminance terms) so values and gradients stay finite over the whole documented domain
+(f in [1e-3, 1e3] cycles/deg, e in [0, 120] deg, v in [0, 1e3] deg/s, luminance in [1e-3, 1e4] cd/m2,
+area in [1e-3, 1e3] deg2). Sensitivities are floored at ``SENSITIVITY_FLOOR`` = 1e-30 so that the
+threshold contrast 1/S stays finite where the model underflows (e.g. 1000 cycles/deg at 120 deg).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._base import CSFModel, check_inputs
+
+__all__ = ["StelaCSF", "SENSITIVITY_FLOOR"]
+
+#: Smallest sensitivity any model of this module returns (threshold contrast <= 1e30).
+SENSITIVITY_FLOOR = 1e-30
+_LN_FLOOR = math.log(SENSITIVITY_FLOOR)
+_LN10 = math.log(10.0)
+_TINY = 1e-30
+
+
+# --------------------------------------------------------------------------- numeric helpers
+def _where_pos(x, fn, fill):
+    """``fn(x)`` where x > 0 else ``fill`` -- the double-where pattern (finite gradients at x <= 0)."""
+    ok = x > 0
+    safe = jnp.where(ok, x, jnp.ones_like(x))
+    return jnp.where(ok, fn(safe), fill)
+
+
+def _safe_log(x):
+    """log(x) for x > 0; log(1e-30) (gradient 0) for x <= 1e-30 -- used for fitted constants."""
+    ok = x > _TINY
+    return jnp.where(ok, jnp.log(jnp.where(ok, x, 1.0)), _LN_FLOOR)
+
+
+def _safe_pow(x, p):
+    """x**p for x >= 0 (0 at x == 0 with a finite, zero gradient)."""
+    return _where_pos(x, lambda s: jnp.exp(p * jnp.log(s)), jnp.zeros_like(x))
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def fill_nan(x, default):
+    """Concrete NaN entries of ``x`` (unknown luminance/area in a data set) replaced by ``default``."""
+    if x is None:
+        return default
+    if _is_concrete(x):
+        a = np.asarray(x)
+        if np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
+            return jnp.asarray(np.where(np.isnan(a), default, a), dtype=jnp.asarray(x).dtype)
+    return x
+
+
+def _float(x):
+    """Input as a JAX float array (ints promoted to the default float dtype)."""
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
+
+
+def _param(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+# --------------------------------------------------------------------------- the model
+class StelaCSF(CSFModel):
+    """Achromatic stelaCSF (Mantiuk, Ashraf & Chapiro 2022, ACM TOG 41(4):145), 2022 parameters.
+
+    Sensitivity S = 1/c_T (Michelson contrast) of a Gabor / disc stimulus of spatial frequency ``f``
+    (cycles/deg) drifting with retinal velocity ``v`` (deg/s; temporal frequency omega = v f, Hz) at
+    eccentricity ``e`` (deg), on a background of ``luminance`` (cd/m2) over ``area`` (deg2).
+    ``sensitivity(f, e, v)`` uses the static defaults ``luminance = 100`` cd/m2 and ``area = 1`` deg2
+    (the conditions of the reference table), and ``vis_field`` (deg; 0 temporal = default as in the
+    reference code, 90 superior, 180 nasal, 270 inferior).
+
+    All 30 published constants are array fields (fittable); see ``param_bounds``. The vector fields
+    follow ``CSF_stelaCSF.m``: ``sust_s_max`` = (p0..p4) of the two-hyperbola luminance dependence,
+    ``sust_f_max`` = (p0, p1, p2) of the single hyperbola, ``trans_s_max`` = (exponent, scale).
+    Outputs broadcast over ``f, e, v, luminance, area`` and are floored at 1e-30.
+
+    Gradients w.r.t. ``v`` at ``v == 0`` (and ``f == 0``) are those of the double-where guard (0 for the
+    transient channel's omega^0.19, whose true derivative is infinite there).
+    """
+
+    sust_s_max: jax.Array = eqx.field(converter=_param, default=(68.9501, 59.5023, 0.164274, 7.54866e-07, 7.77268e09))
+    sust_f_max: jax.Array = eqx.field(converter=_param, default=(1.62144, 36.6565, 0.255823))
+    sust_bw: jax.Array = eqx.field(converter=_param, default=0.000219263)
+    sust_a: jax.Array = eqx.field(converter=_param, default=0.103686)
+    trans_s_max: jax.Array = eqx.field(converter=_param, default=(0.500846, 57.3469))
+    trans_f_max: jax.Array = eqx.field(converter=_param, default=0.0267489)
+    trans_bw: jax.Array = eqx.field(converter=_param, default=1.75147)
+    trans_a: jax.Array = eqx.field(converter=_param, default=0.000273289)
+    sigma_trans: jax.Array = eqx.field(converter=_param, default=0.12314)
+    sigma_sust: jax.Array = eqx.field(converter=_param, default=5.79336)
+    beta_sust: jax.Array = eqx.field(converter=_param, default=1.3314)
+    beta_trans: jax.Array = eqx.field(converter=_param, default=0.1898)
+    omega_0: jax.Array = eqx.field(converter=_param, default=5.0)
+    ecc_drop: jax.Array = eqx.field(converter=_param, default=0.0296662)
+    ecc_drop_nasal: jax.Array = eqx.field(converter=_param, default=0.0113638)
+    ecc_drop_f: jax.Array = eqx.field(converter=_param, default=0.0190062)
+    ecc_drop_f_nasal: jax.Array = eqx.field(converter=_param, default=0.0193858)
+    f0: jax.Array = eqx.field(converter=_param, default=0.65)
+    a0: jax.Array = eqx.field(converter=_param, default=270.0)
+    luminance: float = eqx.field(static=True, default=100.0)
+    area: float = eqx.field(static=True, default=1.0)
+    vis_field: float = eqx.field(static=True, default=0.0)
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e", "v", "luminance", "area")
+    param_bounds: ClassVar[dict[str, tuple[float | None, float | None]]] = {
+        "sust_s_max": (1e-12, None),
+        "sust_f_max": (1e-12, None),
+        "sust_bw": (0.0, 10.0),
+        "sust_a": (0.0, 0.999),
+        "trans_s_max": (1e-12, None),
+        "trans_f_max": (1e-12, None),
+        "trans_bw": (0.0, 10.0),
+        "trans_a": (0.0, 0.999),
+        "sigma_trans": (1e-6, None),
+        "sigma_sust": (1e-6, None),
+        "beta_sust": (1e-3, 5.0),
+        "beta_trans": (1e-3, 5.0),
+        "omega_0": (1e-3, 100.0),
+        "ecc_drop": (0.0, 1.0),
+        "ecc_drop_nasal": (0.0, 1.0),
+        "ecc_drop_f": (0.0, 1.0),
+        "ecc_drop_f_nasal": (0.0, 1.0),
+        "f0": (1e-3, 100.0),
+        "a0": (1e-3, 1e6),
+    }
+
+    def __check_init__(self):
+        shapes = {"sust_s_max": (5,), "sust_f_max": (3,), "trans_s_max": (2,)}
+        for name, shape in shapes.items():
+            if jnp.shape(getattr(self, name)) != shape:
+                raise ValueError(f"StelaCSF: {name} must have shape {shape}, got {jnp.shape(getattr(self, name))}")
+        for name in self.param_bounds:
+            if name not in shapes and jnp.shape(getattr(self, name)) != ():
+                raise ValueError(f"StelaCSF: {name} must be a scalar, got shape {jnp.shape(getattr(self, name))}")
+        for name in ("luminance", "area"):
+            val = getattr(self, name)
+            if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+                raise ValueError(f"StelaCSF: default {name} must be a finite positive number, got {val!r}")
+
+    # ---------------------------------------------------------------- components (natural log)
+    @staticmethod
+    def _ln_hyper(p0, p1, p2, L):
+        """ln of p0 (1 + p1/L)^-p2."""
+        return _safe_log(p0) - p2 * jnp.log1p(p1 / L)
+
+    def _ln_channel(self, lnf, f, L, lnA, ln_s_max, ln_f_max, bw, a):
+        """ln of S_x(rho, L, A) for one channel (sustained or transient); L > 0, f > 0 here."""
+        lnfm = ln_f_max
+        ln_lp = -((lnf - lnfm) ** 2) / _LN10 / (2.0**bw)
+        trunc = jnp.log1p(-jnp.clip(a, 0.0, 0.999999))
+        ln_lp = jnp.where((lnf < lnfm) & (ln_lp < trunc), trunc, ln_lp)
+        ln_ac = _safe_log(self.a0) - jnp.log1p((f / self.f0) ** 2)
+        size = 0.5 * (ln_ac - jnp.logaddexp(0.0, ln_ac - lnA))
+        return ln_s_max + ln_lp + size + lnf
+
+    def log_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
+        """Natural log of the sensitivity (no input validation; see ``stimulus_sensitivity``)."""
+        f, e, v = _float(f), _float(e), _float(v)
+        L = _float(self.luminance if luminance is None else luminance)
+        A = _float(self.area if area is None else area)
+        vf = _float(self.vis_field if vis_field is None else vis_field)
+        return _jit_log_s(self, f, e, v, L, A, vf)
+
+    def _log_s(self, f, e, v, L, A, vf):
+        valid = (f > 0) & (L > 0) & (A > 0)
+        one = jnp.ones_like(f)
+        fs = jnp.where(f > 0, f, one)
+        Ls = jnp.where(L > 0, L, jnp.ones_like(L))
+        As = jnp.where(A > 0, A, jnp.ones_like(A))
+        lnf, lnA = jnp.log(fs), jnp.log(As)
+        es = jnp.maximum(e, 0.0)
+        omega = fs * jnp.maximum(v, 0.0)
+
+        # temporal responses
+        ln_r_sust = -_safe_pow(omega, self.beta_sust) / self.sigma_sust
+        ln_r_trans = -((_safe_pow(omega, self.beta_trans) - self.omega_0**self.beta_trans) ** 2) / self.sigma_trans
+
+        # luminance dependences
+        ps, pf, pt = self.sust_s_max, self.sust_f_max, self.trans_s_max
+        x = ps[4] * jnp.log1p(ps[3] / Ls)
+        ln_dip = _where_pos(x, lambda s: jnp.log(-jnp.expm1(-s)), jnp.full_like(x, _LN_FLOOR))
+        ln_smax_sust = self._ln_hyper(ps[0], ps[1], ps[2], Ls) + ln_dip
+        ln_fmax_sust = self._ln_hyper(pf[0], pf[1], pf[2], Ls)
+        ln_smax_trans = _safe_log(pt[1]) + pt[0] * jnp.log(Ls)
+        ln_fmax_trans = _safe_log(self.trans_f_max)
+
+        ln_sust = self._ln_channel(lnf, fs, Ls, lnA, ln_smax_sust, ln_fmax_sust, self.sust_bw, self.sust_a)
+        ln_trans = self._ln_channel(lnf, fs, Ls, lnA, ln_smax_trans, ln_fmax_trans, self.trans_bw, self.trans_a)
+        ln_s = jnp.logaddexp(ln_r_sust + ln_sust, ln_r_trans + ln_trans)
+
+        alpha = jnp.minimum(1.0, jnp.abs(vf - 180.0) / 90.0)
+        drop = alpha * self.ecc_drop + (1 - alpha) * self.ecc_drop_nasal
+        drop_f = alpha * self.ecc_drop_f + (1 - alpha) * self.ecc_drop_f_nasal
+        ln_s = ln_s - _LN10 * (drop + fs * drop_f) * es
+        return jnp.where(valid, jnp.maximum(ln_s, _LN_FLOOR), _LN_FLOOR)
+
+    def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
+        """Sensitivity 1/c_T of a stimulus: f (cycles/deg), e (deg), v (deg/s), luminance (cd/m2), area (deg2).
+
+        ``luminance`` / ``area`` / ``vis_field`` default to the model's static fields; NaN entries of
+        luminance and area (unknown in a data set) fall back to them too. Arrays broadcast; result has
+        the broadcast shape and is >= 1e-30. Negative or NaN inputs raise ValueError when concrete.
+        """
+        L = fill_nan(luminance, self.luminance)
+        A = fill_nan(area, self.area)
+        f, e, v, L, A, vis_field = check_inputs(
+            "StelaCSF.stimulus_sensitivity", f=f, e=e, v=v, luminance=L, area=A, vis_field=vis_field
+        )
+        return jnp.exp(self.log_sensitivity(f, e, v, L, A, vis_field))
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        """Sensitivity at the default luminance (100 cd/m2) and area (1 deg2); f cycles/deg, e deg, v deg/s."""
+        return self.stimulus_sensitivity(f, e, v)
+
+
+@eqx.filter_jit
+def _jit_log_s(model, f, e, v, L, A, vf):
+    # one compiled kernel per shape/dtype: fast eager calls; inlined when traced inside an outer jit
+    return model._log_s(f, e, v, L, A, vf)

@@ -1,0 +1,59 @@
+"""Atomic outputs, config overrides and run provenance."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from experiments._runinfo import load_config, save_run_info
+from pmetric import atomic_path, atomic_write_text
+
+
+def test_atomic_write_replaces_only_on_success(tmp_path):
+    p = tmp_path / "out.txt"
+    atomic_write_text(p, "first")
+    with pytest.raises(RuntimeError):
+        with atomic_path(p) as tmp:
+            tmp.write_text("partial")
+            raise RuntimeError("crash mid-write")
+    assert p.read_text() == "first"
+    assert sorted(os.listdir(tmp_path)) == ["out.txt"]  # no temporary left behind
+
+
+def test_atomic_refuses_to_overwrite_input(tmp_path):
+    src = tmp_path / "mesh.ply"
+    src.write_text("precious")
+    with pytest.raises(ValueError, match="refusing to overwrite the input"):
+        atomic_write_text(src, "oops", protect=(src,))
+    assert src.read_text() == "precious"
+
+
+DEFAULTS = {"seed": 0, "scale": 1.0, "models": ["a"], "solver": {"name": "lm", "tol": 1e-8}}
+
+
+def test_config_overrides_and_rejects_unknown(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('scale = 2\n[solver]\nname = "bfgs"\n')
+    out = load_config(cfg, DEFAULTS)
+    assert out["scale"] == 2.0 and isinstance(out["scale"], float)
+    assert out["solver"] == {"name": "bfgs", "tol": 1e-8} and out["seed"] == 0
+    cfg.write_text("[solver]\ntoll = 1e-3\n")
+    with pytest.raises(ValueError, match=r"unknown config key 'solver\.toll'"):
+        load_config(cfg, DEFAULTS)
+    cfg.write_text('seed = "zero"\n')
+    with pytest.raises(ValueError, match="'seed' must be int"):
+        load_config(cfg, DEFAULTS)
+    cfg.write_text("seed = = 3\n")
+    with pytest.raises(ValueError, match="malformed TOML"):
+        load_config(cfg, DEFAULTS)
+    with pytest.raises(FileNotFoundError):
+        load_config(tmp_path / "missing.toml", DEFAULTS)
+
+
+def test_run_info_records_provenance(tmp_path):
+    path = save_run_info(tmp_path, {"a": 1}, 7, "plod fit x.csv")
+    info = json.loads(path.read_text())
+    assert info["seed"] == 7 and info["config"] == {"a": 1} and info["command"] == "plod fit x.csv"
+    assert "jax" in info["versions"] and info["git_sha"]

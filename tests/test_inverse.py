@@ -1,0 +1,143 @@
+"""Exact inversions: Lambert W_{-1}, threshold frequency, imperceptible distance (vs brute force)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.special
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import pmetric as pm
+from pmetric._base import CSFModel
+
+FACTORIES = {
+    "manos": lambda: pm.ManosSakrison(),
+    "kelly_abstract": lambda: pm.KellyAbstract(),
+    "kelly1979": lambda: pm.KellySpatioTemporal("kelly1979"),
+    "reddy_st": lambda: pm.KellySpatioTemporal("reddy"),
+    "eccentric_cubic": lambda: pm.Eccentric(pm.ManosSakrison()),
+    "eccentric_linear": lambda: pm.Eccentric(pm.ManosSakrison(), pm.RovamoVirsu("linear")),
+    "eccentric_kelly": lambda: pm.Eccentric(pm.KellySpatioTemporal()),
+}
+with jax.enable_x64(True):  # float64 constants (tests below run in float64)
+    MODELS = {k: f() for k, f in FACTORIES.items()}
+
+
+@pytest.fixture
+def x64():
+    with jax.enable_x64(True):
+        yield
+
+
+def test_lambertw_m1_matches_scipy_float64(x64):
+    x = -np.concatenate([np.geomspace(1e-300, 0.3, 200), np.linspace(0.3, 1 / np.e, 200)])
+    w = np.asarray(pm.lambertw_m1(jnp.asarray(x)))
+    ref = scipy.special.lambertw(x, -1).real
+    ref[-1] = -1.0  # scipy returns NaN exactly at the branch point -1/e
+    np.testing.assert_allclose(w, ref, rtol=1e-12, atol=1e-7)  # atol: sqrt-sensitivity at -1/e
+    np.testing.assert_allclose(w * np.exp(w), x, rtol=1e-12, atol=1e-15)
+
+
+def test_lambertw_m1_float32_and_gradient():
+    x = -np.geomspace(1e-30, 0.367, 100).astype(np.float32)
+    w = np.asarray(pm.lambertw_m1(jnp.asarray(x)))
+    np.testing.assert_allclose(w, scipy.special.lambertw(x.astype(float), -1).real, rtol=1e-5)
+    g = np.asarray(jax.vmap(jax.grad(pm.lambertw_m1))(jnp.asarray(x)))
+    ref = w / (x * (1 + w))
+    np.testing.assert_allclose(g, ref, rtol=1e-4)
+    gb = jax.grad(pm.lambertw_m1)(jnp.float32(-1 / np.e))  # branch point: finite
+    assert np.isfinite(gb)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_threshold_frequency_inverts_falling_limb(name, x64):
+    m = MODELS[name]
+    c = jnp.asarray(np.geomspace(0.01, 1.0, 25))
+    for e, v in [(0.0, 0.0), (10.0, 0.0), (0.0, 5.0), (20.0, 30.0)]:
+        f = m.threshold_frequency(c, e, v)
+        vis = np.asarray(f) > 0
+        fp = np.asarray(m.peak_frequency(e, v))
+        ok = vis & (np.asarray(f) > fp * 1.05)  # strictly on the falling limb
+        if ok.any():
+            ct = np.asarray(m.threshold_contrast(f, e, v))
+            np.testing.assert_allclose(ct[ok], np.asarray(c)[ok], rtol=1e-8)
+        # invisible at peak <=> f == 0
+        peak_ct = float(m.threshold_contrast(fp, e, v))
+        np.testing.assert_array_equal(vis, np.asarray(c) >= peak_ct * (1 - 1e-9))
+        # closed form agrees with the generic base-class solver
+        fg = CSFModel.threshold_frequency(m, c, e, v)
+        np.testing.assert_allclose(np.asarray(fg)[ok], np.asarray(f)[ok], rtol=1e-6)
+
+
+_KK = np.geomspace(1e-4, 1e5, 4001)
+_perc = jax.jit(lambda m, c, f, e, v: m.is_perceptible(c, f, e, v))
+_dist = jax.jit(lambda m, c, t, e, v: m.imperceptible_distance(c, t, e, v))
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+@settings(max_examples=8, deadline=None)
+@given(
+    c=st.floats(1e-3, 1.0),
+    theta=st.floats(0.01, 5.0),
+    e=st.sampled_from([0.0, 0.5, 5.0, 40.0]) | st.floats(0.0, 80.0),
+    v=st.sampled_from([0.0, 1.0, 30.0]) | st.floats(0.0, 200.0),
+)
+def test_imperceptible_distance_definition(name, c, theta, e, v):
+    """Brute force: coarse grid over 9 decades of k plus a fine grid just above k."""
+    m = MODELS[name]
+    with jax.enable_x64(True):
+        k = float(_dist(m, c, theta, e, v))
+        kk = np.concatenate([_KK, k * (1 + np.geomspace(1e-4, 1.0, 2000))]) if k > 0 else _KK
+        p = np.asarray(_perc(m, c, kk / (2 * theta), e / kk, v / kk))
+        assert not p[kk > k * (1 + 1e-4)].any(), (k, kk[p].max())  # nothing beyond k is perceptible
+        if k > 0:
+            ks = k * (1 - 1e-4)
+            assert bool(_perc(m, c, ks / (2 * theta), e / ks, v / ks)), k  # perceptible at k
+
+
+@pytest.mark.parametrize("name", ["manos", "kelly_abstract", "eccentric_cubic", "kelly1979"])
+def test_closed_form_distance_matches_generic(name, x64):
+    m = MODELS[name]
+    rng = np.random.default_rng(0)
+    c = rng.uniform(0.005, 1, 64)
+    theta = rng.uniform(0.02, 2, 64)
+    e = rng.uniform(0, 60, 64)
+    v = np.where(rng.uniform(size=64) < 0.5, 0.0, rng.uniform(0, 100, 64))
+    k = np.asarray(m.imperceptible_distance(c, theta, e, v))
+    kg = np.asarray(CSFModel.imperceptible_distance(m, c, theta, e, v))
+    np.testing.assert_allclose(k, kg, rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_distance_gradients_match_finite_differences(name, x64):
+    m = MODELS[name]
+    c, theta, e, v = 0.3, 0.2, 3.0, 0.5
+    fun = lambda *a: m.imperceptible_distance(*a)  # noqa: E731
+    g = jax.grad(fun, argnums=(0, 1, 2, 3))(c, theta, e, v)
+    x0 = np.array([c, theta, e, v])
+    for i in range(4):
+        h = 1e-6 * max(abs(x0[i]), 1.0)
+        xp, xm = x0.copy(), x0.copy()
+        xp[i] += h
+        xm[i] -= h
+        fd = (float(fun(*xp)) - float(fun(*xm))) / (2 * h)
+        assert float(g[i]) == pytest.approx(fd, rel=1e-4, abs=1e-7), (i, g[i], fd)
+
+
+def test_theta_zero_and_zero_contrast_give_zero(x64):
+    for m in MODELS.values():
+        assert float(m.imperceptible_distance(0.5, 0.0)) == 0.0
+        assert float(m.imperceptible_distance(0.0, 1.0)) == 0.0
+        assert float(m.threshold_frequency(0.0)) == 0.0
+
+
+def test_kelly_abstract_closed_form_by_hand(x64):
+    # delta = e^2 -> peak sensitivity 4: c = 1 visible; alpha* solves alpha^2 e^-alpha = e^-2
+    m = pm.KellyAbstract(delta=np.e**2, f0=2.0)
+    a = float(m.threshold_frequency(1.0))  # f0 = 2 -> alpha = f
+    assert a**2 * np.exp(-a) == pytest.approx(np.exp(-2.0), rel=1e-12)
+    assert a == pytest.approx(-2 * scipy.special.lambertw(-0.5 / np.e, -1).real, rel=1e-12)
+    # distance: alpha(k) = (k + 0.29 e) / (theta f0)
+    k = float(m.imperceptible_distance(1.0, 0.5, 2.0))
+    assert k == pytest.approx(a * 0.5 * 2.0 - 0.29 * 2.0, rel=1e-12)
