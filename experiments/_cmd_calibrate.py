@@ -141,6 +141,8 @@ def run(args) -> int:
         else:
             parts.append(staircase_2afc(observer, stimuli, rule=args.rule, trials=args.trials))
     data = CalibrationData.concatenate(parts)
+    if len(data) == 0:
+        raise PlodError("no grating of the grid was visible to the simulated observer; nothing written")
     data.to_csv(out)
     print(f"wrote {len(data)} of {len(stimuli) * args.repeats} simulated thresholds "
           f"({args.method}, {type(model).__name__}, seed {args.observer_seed}) to {out}")

@@ -62,9 +62,13 @@ def register(sub) -> None:
 
 # ----------------------------------------------------------------------------------------------- parsing
 def _error(msg: str):
+    """A user error: ``PlodError`` (and ``ValueError``, so it prints as one line under any entry point)."""
     from experiments.cli import PlodError
 
-    return PlodError(msg)
+    class SimplifyError(PlodError, ValueError):
+        pass
+
+    return SimplifyError(msg)
 
 
 def _vector(flag: str, text: str | None, n: int):

@@ -11,3 +11,4 @@ from ._tree import Lighting, VertexTree, build_tree, load_tree, mesh_hash, norma
 from ._cut import Cut, budget_cut, budget_cut_heap, extract, repair_monotone, threshold_cut
 from ._view import View
 from ._score import NodeTerms, ScoringContext, imperceptible_cut, node_terms, score, scoring_context
+from ._mcmc import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc

@@ -52,7 +52,12 @@ class Cut:
         return int(np.count_nonzero(self.unfolded))
 
 
-def _prepare_keys(tree, keys, monotone: str, who: str) -> np.ndarray:
+def _prepare_keys(tree, keys, monotone: str, who: str):
+    """Check keys; returns ``(k (N,), ki (M,))``: all keys and those of the internal nodes.
+
+    float32 keys stay float32 (the selection then works on 32-bit codes); anything else becomes
+    float64. Only internal nodes' keys matter (leaves are never unfolded) and only they are checked.
+    """
     if monotone not in _MONOTONE:
         raise ValueError(f"{who}: monotone must be one of {_MONOTONE}, got {monotone!r}")
     k = np.asarray(keys)
@@ -61,25 +66,41 @@ def _prepare_keys(tree, keys, monotone: str, who: str) -> np.ndarray:
         raise ValueError(f"{who}: keys must have shape ({N},) (one per tree node), got {k.shape}")
     if not np.issubdtype(k.dtype, np.floating) and not np.issubdtype(k.dtype, np.integer):
         raise ValueError(f"{who}: keys must be real numbers, got dtype {k.dtype}")
-    k = k.astype(np.float64, copy=False)
-    if np.isnan(k).any():
-        raise ValueError(f"{who}: keys contain NaN (node {int(np.flatnonzero(np.isnan(k))[0])})")
-    if monotone == "trust":
-        return k
+    if k.dtype != np.float32:
+        k = k.astype(np.float64, copy=False)
     internal = tree.internal
-    if internal.size > 1:
-        ch = internal[1:]
-        viol = k[tree.parent[ch]] < k[ch]
-        if viol.any():
-            if monotone == "repair":
-                return repair_monotone(tree, k)
-            i = int(ch[np.flatnonzero(viol)[0]])
-            raise ValueError(
-                f"{who}: keys are not monotone (parent >= child) at {int(viol.sum())} internal nodes, e.g. node "
-                f"{i} key {k[i]:g} > parent {int(tree.parent[i])} key {k[tree.parent[i]]:g}; pass "
-                f"monotone='repair' to propagate the maximum upward (seed 004 footnote 2)"
-            )
-    return k
+    ki = k.take(internal)
+    if monotone == "trust" or internal.size < 2:
+        if np.isnan(ki).any():
+            raise ValueError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
+        return k, ki
+    ok = ki.take(_internal_parent_pos(tree)) >= ki[1:]  # False for a violation or a NaN
+    if ok.all():
+        return k, ki
+    if np.isnan(ki).any():
+        raise ValueError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
+    if monotone == "repair":
+        k = repair_monotone(tree, k)
+        return k, k.take(internal)
+    bad = ~ok
+    i = int(internal[1:][np.flatnonzero(bad)[0]])
+    raise ValueError(
+        f"{who}: keys are not monotone (parent >= child) at {int(bad.sum())} internal nodes, e.g. node "
+        f"{i} key {k[i]:g} > parent {int(tree.parent[i])} key {k[tree.parent[i]]:g}; pass "
+        f"monotone='repair' to propagate the maximum upward (seed 004 footnote 2)"
+    )
+
+
+def _internal_parent_pos(tree) -> np.ndarray:
+    """(M - 1,) position in ``tree.internal`` of the parent of each non-root internal node (cached)."""
+    p = tree.__dict__.get("_internal_parent_pos")
+    if p is None:
+        internal = tree.internal
+        pos = np.full(tree.n_nodes, -1, dtype=np.int64)
+        pos[internal] = np.arange(internal.size)
+        p = pos.take(tree.parent.take(internal[1:])).astype(np.int32)
+        tree.__dict__["_internal_parent_pos"] = p
+    return p
 
 
 def repair_monotone(tree, keys) -> np.ndarray:
@@ -96,12 +117,19 @@ def repair_monotone(tree, keys) -> np.ndarray:
 
 
 def _desc_rank_bits(k: np.ndarray) -> np.ndarray:
-    """uint64 codes whose ascending order is the descending order of float64 keys (-0.0 == 0.0)."""
-    k = k + 0.0  # -0.0 -> 0.0
-    b = k.view(np.uint64)
-    neg = (b >> np.uint64(63)).astype(bool)
-    asc = np.where(neg, ~b, b | np.uint64(1 << 63))
-    return ~asc
+    """Unsigned codes whose ascending order is the descending order of the float keys.
+
+    float32 -> uint32, float64 -> uint64 (IEEE bit trick; -0.0 is first turned into 0.0 so that the
+    two zeros tie, as they do for the heap's float comparison).
+    """
+    if k.dtype == np.float32:
+        u, s, top = np.uint32, np.int32, 31
+    else:
+        u, s, top = np.uint64, np.int64, 63
+    k = k + k.dtype.type(0)  # -0.0 -> 0.0
+    b = k.view(u)
+    neg = (k.view(s) >> top).view(u)  # all ones for negative keys
+    return b ^ ~(neg | u(1 << top))
 
 
 def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
@@ -110,7 +138,8 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
     Args:
         tree: :class:`optim.VertexTree`.
         keys: (N,) fold priorities, larger = keep unfolded first (perceptual keys: imperceptible
-            viewing-distance multiples). Must be monotone (parent >= child) among internal nodes.
+            viewing-distance multiples); -inf is allowed (culled). Only internal nodes' keys are
+            used; they must be monotone (parent >= child). float32 keys are used as they are.
         budget: largest number of triangles (>= 0).
         monotone: ``"check"`` (default: ValueError on violation), ``"repair"`` (use the monotone
             envelope, :func:`repair_monotone`) or ``"trust"`` (no check; with non-monotone keys the
@@ -120,7 +149,7 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
         :class:`Cut`, identical to :func:`budget_cut_heap` for monotone keys.
     """
     budget = _check_budget(budget)
-    k = _prepare_keys(tree, keys, monotone, "budget_cut")
+    k, ki = _prepare_keys(tree, keys, monotone, "budget_cut")
     internal = tree.internal
     M = internal.size
     unfolded = np.zeros(tree.n_nodes, dtype=bool)
@@ -131,36 +160,35 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
     if total <= budget:
         unfolded[internal] = True
         return Cut(unfolded, total, 0.0, "all_unfolded")
-    code = _desc_rank_bits(k[internal])
-    # weighted radix selection: find the first item (in order code asc, index asc) at which the
-    # running triangle sum exceeds the budget
+    code = _desc_rank_bits(ki)
+    # weighted radix selection, 16 bits per pass from the top: find the item (order: code asc,
+    # index asc) at which the running triangle sum first exceeds the budget
     cand = None  # None = all items
     base = 0.0
-    shift = 48
+    shift = code.dtype.itemsize * 8 - 16
+    mask16 = code.dtype.type(0xFFFF)
     while True:
-        cc = code if cand is None else code[cand]
-        wc = w if cand is None else w[cand]
-        b = ((cc >> np.uint64(shift)) & np.uint64(0xFFFF)).astype(np.int64)
-        hist = np.bincount(b, weights=wc, minlength=65536)
-        cum = base + np.cumsum(hist)
-        j = int(np.searchsorted(cum, budget, side="right"))  # first bucket whose running sum > budget
-        base = float(cum[j - 1]) if j > 0 else base
+        cc = code if cand is None else code.take(cand)
+        wc = w if cand is None else w.take(cand)
+        b = ((cc >> code.dtype.type(shift)) & mask16).astype(np.intp)
+        cum = np.cumsum(np.bincount(b, weights=wc, minlength=65536))
+        j = int(np.searchsorted(cum, budget - base, side="right"))  # first bucket whose running sum > budget
+        if j > 0:
+            base += float(cum[j - 1])
         sel = np.flatnonzero(b == j)
-        cand = sel if cand is None else cand[sel]
+        cand = sel if cand is None else cand.take(sel)
         if cand.size <= 4096 or shift == 0:
             break
         shift -= 16
     # exact order among the candidates (cand is ascending in index already)
-    o = np.lexsort((cand, code[cand]))
-    cs = cand[o]
-    run = base + np.cumsum(w[cs], dtype=np.float64)
+    cs = cand[np.lexsort((cand, code.take(cand)))]
+    run = base + np.cumsum(w.take(cs), dtype=np.float64)
     m = int(np.searchsorted(run, budget, side="right"))  # cs[m] is the first that does not fit
     stop = int(cs[m])
-    cstop = code[stop]
-    take = (code < cstop) | ((code == cstop) & (np.arange(M) < stop))
-    unfolded[internal[take]] = True
+    unfolded[internal] = code < code[stop]  # everything strictly ahead of the stop's key
+    unfolded[internal.take(cs[:m])] = True  # and the candidates before it (its ties of lower index)
     tri = int(run[m - 1]) if m > 0 else int(base)
-    return Cut(unfolded, tri, float(k[internal[stop]]), "budget")
+    return Cut(unfolded, tri, float(ki[stop]), "budget")
 
 
 def _internal_subtris(tree) -> np.ndarray:
@@ -188,7 +216,7 @@ def budget_cut_heap(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
     subtris fit, stops at the first that does not. O(n log n) in Python: for tests and benchmarks.
     """
     budget = _check_budget(budget)
-    k = _prepare_keys(tree, keys, monotone, "budget_cut_heap")
+    k, _ = _prepare_keys(tree, keys, monotone, "budget_cut_heap")
     N = tree.n_nodes
     unfolded = np.zeros(N, dtype=bool)
     cc, cst, ns = tree.child_count, tree.child_start, tree.num_subtris
@@ -216,12 +244,11 @@ def threshold_cut(tree, keys, threshold: float = 1.0, *, monotone: str = "check"
     thr = float(threshold)
     if np.isnan(thr):
         raise ValueError("threshold_cut: threshold is NaN")
-    k = _prepare_keys(tree, keys, monotone, "threshold_cut")
+    k, ki = _prepare_keys(tree, keys, monotone, "threshold_cut")
     internal = tree.internal
     unfolded = np.zeros(tree.n_nodes, dtype=bool)
     if internal.size == 0:
         return Cut(unfolded, 0, 0.0, "all_unfolded")
-    ki = k[internal]
     take = ki > thr
     if monotone == "trust":  # close under ancestors explicitly
         unfolded[internal[take]] = True
@@ -261,20 +288,20 @@ def extract(tree, cut):
         raise ValueError(f"extract: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
     # highest folded nodes (folded, parent unfolded): each leaf lies under exactly one; their
     # depth-first leaf ranges tile 0..V-1, so a forward fill maps every leaf position to its node
-    pu = unf.take(tree.parent)
+    parent, tri_node, vdfs = _extract_index(tree)
+    pu = unf.take(parent)
     pu[0] = True
     bnd = np.flatnonzero(pu & ~unf)
     lo = tree.leaf_lo.take(bnd)
-    fill = np.zeros(V, dtype=np.int32)
+    fill = np.zeros(V, dtype=np.intp)
     fill[lo] = lo
     np.maximum.accumulate(fill, out=fill)
-    canon = np.zeros(V, dtype=np.int32)
+    canon = np.zeros(V, dtype=np.intp)
     canon[lo] = tree.min_vertex.take(bnd)  # a cluster is named by its smallest input vertex
-    node_at = np.zeros(V, dtype=np.int32)
+    node_at = np.zeros(V, dtype=np.intp)
     node_at[lo] = bnd
-    vdfs = _vertex_dfs(tree)
     repv = canon.take(fill).take(vdfs)  # (V,) canonical vertex of each input vertex
-    keep = np.flatnonzero(unf.take(tree.tri_node))
+    keep = np.flatnonzero(unf.take(tri_node))
     fr = repv.take(tree.faces.take(keep, axis=0))  # (T', 3) canonical vertex ids
     used = np.zeros(V, dtype=bool)
     used[fr.ravel()] = True
@@ -282,22 +309,22 @@ def extract(tree, cut):
     newidx = np.cumsum(used, dtype=np.int32) - 1
     faces = newidx.take(fr)
     nodes = node_at.take(fill.take(vdfs.take(out_v)))
-    verts = tree.position.take(nodes, axis=0).astype(np.float64)
-    isleaf = tree.child_count.take(nodes) == 0
-    lv = out_v[isleaf]  # a leaf's canonical vertex is its own
-    verts[isleaf] = tree.vertices.take(lv, axis=0)
+    verts = tree.vertices.take(out_v, axis=0)  # right for leaves (a leaf's canonical vertex is its own)
+    inner = np.flatnonzero(tree.child_count.take(nodes))
+    verts[inner] = tree.position.take(nodes.take(inner), axis=0)
     colors = None
     if tree.color is not None:
-        colors = tree.color.take(nodes, axis=0).astype(np.float32)
-        if tree.colors is not None:
-            colors[isleaf] = tree.colors.take(lv, axis=0)
+        colors = tree.colors.take(out_v, axis=0) if tree.colors is not None else tree.color.take(nodes, axis=0)
+        colors[inner] = tree.color.take(nodes.take(inner), axis=0)
     return verts, faces, colors
 
 
-def _vertex_dfs(tree) -> np.ndarray:
-    """(V,) depth-first leaf position of each input vertex (cached on the tree)."""
-    d = tree.__dict__.get("_vertex_dfs")
-    if d is None:
-        d = tree.leaf_lo.take(tree.vertex_node).astype(np.int32)
-        tree.__dict__["_vertex_dfs"] = d
-    return d
+def _extract_index(tree):
+    """Per-tree caches for :func:`extract` (intp copies avoid a conversion per view):
+    ``parent`` (N,), ``tri_node`` (T,) and the depth-first leaf position of each vertex (V,)."""
+    c = tree.__dict__.get("_extract_index")
+    if c is None:
+        c = (tree.parent.astype(np.intp), tree.tri_node.astype(np.intp),
+             tree.leaf_lo.take(tree.vertex_node).astype(np.intp))
+        tree.__dict__["_extract_index"] = c
+    return c

@@ -461,7 +461,9 @@ def _solve(theta0, fixed, arrays, st: _Static, solver: str, backend: str, rtol: 
             theta, state = opt.run(theta0)
         steps = state.iter_num
         # jaxopt has no result enum: successful when the stopping criterion was met
-        code = jnp.where(state.error <= atol, 0, jnp.where(steps >= max_steps, 1, 4))
+        # (its loop runs at most max_steps - 1 iterations and stops early on a NaN gradient norm)
+        code = jnp.where(state.error <= atol, 0,
+                         jnp.where(jnp.isnan(state.error), 9, jnp.where(steps >= max_steps - 1, 1, 4)))
     r = resid(theta)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.all(jnp.isfinite(r))
     code = jnp.where(finite, code, 9)

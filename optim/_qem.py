@@ -101,7 +101,8 @@ def qem_parents(v: np.ndarray, f: np.ndarray, aggressiveness: float = 7.0) -> np
     k = np.arange(C)
     # previous collapse with the same i0 (its node is child 0 of collapse k), else the leaf i0
     o = np.lexsort((k, i0))
-    same = np.concatenate([[False], i0[o][1:] == i0[o][:-1]])
+    same = np.zeros(C, dtype=bool)
+    same[1:] = i0[o][1:] == i0[o][:-1]
     prev = np.full(C, -1, dtype=np.int64)
     prev[o[same]] = o[np.flatnonzero(same) - 1]
     child0 = np.where(prev >= 0, V + prev, i0)

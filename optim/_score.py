@@ -27,7 +27,8 @@ Stages (one jitted XLA function over all nodes, flat arrays, per view):
    section 4.3) the node's luminance range against the scene's brightest and darkest values,
    background included (seed 001 section 4.2, seed 004 section 5.2).
 6. ``_key``: ``model.imperceptible_distance(c, theta, e, v)``, or the pixel keys.
-7. ``_monotone``: maximum propagated from the deepest level up (nodes kept in level order).
+7. ``_monotone``: each key becomes the maximum over its subtree (range-maximum query over the
+   depth-first preorder, where every subtree is a contiguous range).
 
 Per-tree device arrays (level order, packed normal masks) are built once: :func:`scoring_context`
 caches them on the tree.
@@ -80,6 +81,7 @@ def _fallback_cell(normals: np.ndarray) -> np.ndarray:
     return face * 64 + j * 8 + i
 
 
+@functools.lru_cache(maxsize=1)
 def _cell_layout():
     """(cell function normals -> cell index 0..383, bit function cell -> (byte, bit value)).
 
@@ -132,7 +134,7 @@ def _dir_bin_np(d: np.ndarray) -> np.ndarray:
     return face * q * q + j * q + i
 
 
-@functools.lru_cache(maxsize=2)
+@functools.lru_cache(maxsize=4)
 def _silhouette_table_cached(layout_key) -> np.ndarray:
     cell_fn, bit_fn = _cell_layout()
     samples = _sample_sphere(97)
@@ -165,13 +167,14 @@ def silhouette_table() -> np.ndarray:
 class ScoringContext(eqx.Module):
     """Per-tree device arrays, built once by :func:`scoring_context` (cached on the tree).
 
-    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first
-    order, as flat float32 columns (M,): ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object
-    units), ``lum_min``, ``lum_max``, ``fold_delta`` (relative luminance), ``geom_error`` (object
-    units); ``mask`` (M, 12) uint32 packed normal masks; ``parent`` (M,) int32 position of the parent
-    (-1 for the root); ``node`` (M,) int32 tree index. Static: ``levels`` (start offset of each depth
-    level, plus M), ``n_nodes`` (N), ``sorted_nodes`` (``node`` ascending), ``scene_lum`` (darkest,
-    brightest relative luminance of the model).
+    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in depth-first
+    preorder, so that the subtree of the node at position i is positions ``i : i + size[i]``. Flat
+    float32 columns (M,): ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units),
+    ``lum_min``, ``lum_max``, ``fold_delta`` (relative luminance), ``geom_error`` (object units);
+    ``mask`` (M, 12) uint32 packed normal masks, ``nonempty`` (M,) bool; ``end`` (M,) int32 ``i + size[i]``; ``rmq`` per
+    sparse-table level j >= 1 the positions whose subtree length has floor(log2) = j and the start of
+    the second window; ``pos`` (N,) int32 preorder position of every tree node (M for leaves).
+    Static: ``n_nodes`` (N), ``scene_lum`` (darkest, brightest relative luminance of the model).
     """
 
     cx: jax.Array
@@ -183,14 +186,12 @@ class ScoringContext(eqx.Module):
     fold_delta: jax.Array
     geom_error: jax.Array
     mask: jax.Array
-    parent: jax.Array
-    first_child: jax.Array
-    n_children: jax.Array
-    node: jax.Array
-    levels: tuple = eqx.field(static=True)
-    level_kmax: tuple = eqx.field(static=True)
+    nonempty: jax.Array
+    end: jax.Array
+    rmq: tuple
+    rmq_src: jax.Array
+    pos: jax.Array
     n_nodes: int = eqx.field(static=True)
-    sorted_nodes: bool = eqx.field(static=True)
     scene_lum: tuple = eqx.field(static=True)
 
 
@@ -242,6 +243,28 @@ def _level_order(parent, child_start, child_count):
     return order, np.concatenate(depth)
 
 
+def _preorder(par: np.ndarray, depth: np.ndarray):
+    """Depth-first preorder of a tree given in breadth-first order (children grouped by parent):
+    (pre (M,) preorder position of each node, size (M,) subtree sizes)."""
+    m = len(par)
+    levels = np.searchsorted(depth, np.arange(int(depth.max()) + 2))
+    size = np.ones(m, np.int64)
+    for k in range(len(levels) - 2, 0, -1):
+        a, b = levels[k], levels[k + 1]
+        np.add.at(size, par[a:b], size[a:b])
+    pre = np.zeros(m, np.int64)
+    for k in range(1, len(levels) - 1):
+        a, b = levels[k], levels[k + 1]
+        if b == a:
+            continue
+        p, sz = par[a:b], size[a:b]
+        excl = np.cumsum(sz) - sz
+        start = np.r_[True, p[1:] != p[:-1]]
+        base = np.maximum.accumulate(np.where(start, excl, 0))
+        pre[a:b] = pre[p] + 1 + excl - base
+    return pre, size
+
+
 def scoring_context(tree) -> ScoringContext:
     """Build (once; cached on the tree) the device arrays :func:`score` needs for ``tree``."""
     cached = getattr(tree, "_plod_scoring_context", None)
@@ -256,25 +279,30 @@ def scoring_context(tree) -> ScoringContext:
     count = np.asarray(tree.child_count)
     order, depth = _level_order(parent, np.asarray(tree.child_start), count)
     keep = count[order] > 0
-    node = order[keep]
+    node = order[keep] if keep.any() else np.zeros(1, np.int64)  # a lone vertex: nothing to fold
+    depth_int = depth[keep] if keep.any() else np.zeros(1, np.int64)
     m = len(node)
-    if m == 0:  # a single-vertex "tree": nothing to fold
-        node = np.zeros(1, np.int64)
-        m = 1
-        depth_int = np.zeros(1, np.int64)
-    else:
-        depth_int = depth[keep]
-    pos = np.full(n, -1, np.int64)
-    pos[node] = np.arange(m)
-    par = np.where(parent[node] >= 0, pos[np.maximum(parent[node], 0)], -1)
+    bfs_pos = np.full(n, -1, np.int64)
+    bfs_pos[node] = np.arange(m)
+    par = np.where(parent[node] >= 0, bfs_pos[np.maximum(parent[node], 0)], -1)
     if (par[1:] < 0).any():
         raise ValueError("score: an internal node's parent is not an internal node")
-    levels = tuple(int(x) for x in np.searchsorted(depth_int, np.arange(int(depth_int.max()) + 2)))
-    n_ch = np.bincount(par[1:], minlength=m).astype(np.int64)
-    first = np.full(m, 0, np.int64)
-    if m > 1:  # children of a node are contiguous in level order: first = position of the first one
-        first[par[:0:-1]] = np.arange(m - 1, 0, -1)
-    kmax = tuple(int(n_ch[levels[i]:levels[i + 1]].max(initial=0)) for i in range(len(levels) - 1))
+    pre, size = _preorder(par, depth_int)
+    inv = np.empty(m, np.int64)
+    inv[pre] = np.arange(m)
+    node, size = node[inv], size[inv]  # preorder from here on
+    pos = np.full(n, m, np.int64)
+    pos[node] = np.arange(m)
+    end = np.arange(m) + size
+    j = np.floor(np.log2(size)).astype(np.int64)
+    rmq = []
+    src = np.arange(m)  # where _monotone finds each node's answer: its own key or a level's result
+    off = m
+    for lvl in range(1, int(j.max()) + 1):
+        idx = np.flatnonzero(j == lvl)
+        src[idx] = off + np.arange(len(idx))
+        off += len(idx)
+        rmq.append((jnp.asarray(idx.astype(np.int32)), jnp.asarray((end[idx] - (1 << lvl)).astype(np.int32))))
     f32 = lambda a: jnp.asarray(np.asarray(a, np.float32)[node])  # noqa: E731
     center = np.asarray(tree.center, np.float32)[node]
     mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
@@ -282,10 +310,8 @@ def scoring_context(tree) -> ScoringContext:
     ctx = ScoringContext(
         cx=jnp.asarray(center[:, 0]), cy=jnp.asarray(center[:, 1]), cz=jnp.asarray(center[:, 2]),
         radius=f32(tree.radius), lum_min=f32(lum_min), lum_max=f32(lum_max), fold_delta=f32(tree.fold_delta),
-        geom_error=f32(tree.geom_error), mask=jnp.asarray(mask), parent=jnp.asarray(par.astype(np.int32)),
-        first_child=jnp.asarray(first.astype(np.int32)), n_children=jnp.asarray(n_ch.astype(np.int32)),
-        node=jnp.asarray(node.astype(np.int32)), levels=levels, level_kmax=kmax, n_nodes=n,
-        sorted_nodes=bool(np.all(np.diff(node) > 0)),
+        geom_error=f32(tree.geom_error), mask=jnp.asarray(mask), nonempty=jnp.asarray((mask != 0).any(1)), end=jnp.asarray(end.astype(np.int32)),
+        rmq=tuple(rmq), rmq_src=jnp.asarray(src.astype(np.int32)), pos=jnp.asarray(pos.astype(np.int32)), n_nodes=n,
         scene_lum=(float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))),
     )
     try:
@@ -419,12 +445,10 @@ def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_moti
     level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
     level = jnp.where(inside, len(_MARGINS_DEG) - 1, level)
     row = level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz)
-    tab = jnp.take(table, row, axis=0, mode="clip")  # (M, 24); 'clip' avoids the slow checked gather
-    mask = ctx.mask
-    nonempty = jnp.any(mask != 0, axis=1)
-    front = jnp.any((tab[:, :12] & mask) != 0, axis=1)
-    back = jnp.any((tab[:, 12:] & mask) != 0, axis=1)
-    backfacing = nonempty & ~front
+    tab = jnp.take(table, row, axis=0, mode="clip").reshape(-1, 2, 12)  # 'clip': no slow checked gather
+    hit = jnp.any((tab & ctx.mask[:, None, :]) != 0, axis=2)  # (M, 2): some normal may face front / back
+    front, back = hit[:, 0], hit[:, 1]
+    backfacing = ctx.nonempty & ~front
     silhouette = front & back
     culled = (outside & ~inside) | backfacing
 
@@ -484,38 +508,29 @@ def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_moti
 
 
 def _propagate_culled(ctx: ScoringContext, culled):
-    """A culled node culls its whole subtree (level by level, top down)."""
-    lv = ctx.levels
-    for k in range(1, len(lv) - 1):
-        a, b = lv[k], lv[k + 1]
-        if b > a:
-            up = jnp.take(culled, ctx.parent[a:b], mode="clip", indices_are_sorted=True)
-            culled = culled.at[a:b].set(culled[a:b] | up)
-    return culled
+    """A culled node culls its whole subtree: position i is covered when some culled node's preorder
+    range ``[j, end[j])`` contains it (difference array + prefix sum)."""
+    c = culled.astype(jnp.int32)
+    m = c.shape[0]
+    ends = jnp.zeros(m + 1, jnp.int32).at[ctx.end].add(c, mode="promise_in_bounds")
+    return jnp.cumsum(c - ends[:m]) > 0
 
 
 def _monotone(ctx: ScoringContext, key):
-    """key[parent] = max(key[parent], key[children]), deepest level first (seed 004 footnote 2).
-
-    Internal children of a node are contiguous (``first_child``, ``n_children``); levels whose nodes
-    have at most 8 internal children use 8 gathers, wider levels a segment maximum."""
-    lv, kmax = ctx.levels, ctx.level_kmax
-    for k in range(len(lv) - 2, 0, -1):
-        a, b = lv[k], lv[k + 1]
-        pa, pb = lv[k - 1], lv[k]
-        if b == a or pb == pa:
-            continue
-        if kmax[k - 1] <= 8:
-            first, cnt = ctx.first_child[pa:pb], ctx.n_children[pa:pb]
-            m = jnp.zeros(pb - pa, key.dtype)
-            for j in range(kmax[k - 1]):
-                got = jnp.take(key, first + j, mode="clip", indices_are_sorted=True)
-                m = jnp.maximum(m, jnp.where(j < cnt, got, 0.0))
-        else:
-            seg = ctx.parent[a:b] - pa
-            m = jax.ops.segment_max(key[a:b], seg, num_segments=pb - pa, indices_are_sorted=True)
-        key = key.at[pa:pb].set(jnp.maximum(key[pa:pb], m))
-    return key
+    """key[i] = max of key over the subtree of i (seed 004 footnote 2): a range-maximum query over the
+    preorder range ``[i, end[i])`` by a sparse table (two overlapping power-of-two windows). Window
+    arrays shrink level by level; one final gather puts every node's answer in place."""
+    parts = [key]
+    win = key  # win[i] = max(key[i : i + 2^lvl]), valid for i <= M - 2^lvl
+    for lvl, (idx, second) in enumerate(ctx.rmq, start=1):
+        h = 1 << (lvl - 1)
+        win = jnp.maximum(win[:-h], win[h:])
+        a = jnp.take(win, idx, mode="clip", indices_are_sorted=True)
+        b = jnp.take(win, second, mode="clip")
+        parts.append(jnp.maximum(a, b))
+    if len(parts) == 1:
+        return key
+    return jnp.take(jnp.concatenate(parts), ctx.rmq_src, mode="clip")
 
 
 # ------------------------------------------------------------------ perceptual key through a contrast table
@@ -572,8 +587,9 @@ def _table_key(ktab, c, theta, ecc):
 
 
 def _scatter_nodes(ctx, vals, fill):
-    out = jnp.full((ctx.n_nodes,), fill, vals.dtype)
-    return out.at[ctx.node].set(vals, indices_are_sorted=ctx.sorted_nodes, unique_indices=True, mode="promise_in_bounds")
+    """Preorder values (M,) -> tree order (N,), ``fill`` at the leaves."""
+    padded = jnp.concatenate([vals, jnp.full((1,), fill, vals.dtype)])
+    return jnp.take(padded, ctx.pos, mode="clip")
 
 
 @eqx.filter_jit

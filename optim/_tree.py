@@ -272,8 +272,8 @@ class VertexTree:
 
     @functools.cached_property
     def internal(self) -> np.ndarray:
-        """Indices (ascending, int32) of the internal nodes (the only nodes a cut can unfold)."""
-        return np.flatnonzero(self.child_count > 0).astype(np.int32)
+        """Indices (ascending, intp) of the internal nodes (the only nodes a cut can unfold)."""
+        return np.flatnonzero(self.child_count > 0)
 
     @functools.cached_property
     def level_start(self) -> np.ndarray:
@@ -339,6 +339,14 @@ def load_tree(path: str | os.PathLike) -> VertexTree:
     if missing:
         raise ValueError(f"{str(p)!r}: tree file lacks arrays {missing}")
     kw = {k: data.get(k) for k in _ARRAYS}
+    N, V, T = kw["parent"].shape[0], kw["vertices"].shape[0], kw["faces"].shape[0]
+    want = {"vertices": (V, 3), "faces": (T, 3), "colors": (V, 3), "vertex_node": (V,), "position": (N, 3),
+            "color": (N, 3), "center": (N, 3), "normal_mask": (N, 48), "subtri_start": (N + 1,), "subtris": (T,),
+            "tri_node": (T,), "leaf_vertex": (V,)}
+    for k in _ARRAYS:
+        shape = want.get(k, (N,))
+        if kw[k] is not None and kw[k].shape != shape:
+            raise ValueError(f"{str(p)!r}: tree array {k!r} has shape {kw[k].shape}, expected {shape} (corrupt file?)")
     light = meta.get("lighting")
     return VertexTree(**kw, method=meta.get("method", "octree"),
                       lighting=None if light is None else Lighting(**light),

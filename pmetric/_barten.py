@@ -30,7 +30,6 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ._base import CSFModel, check_inputs
 from ._stela import _LN_FLOOR, _float, _param, _safe_log, _where_pos, fill_nan

@@ -228,6 +228,7 @@ def staircase_2afc(
     step_db: float = 2.0,
     max_contrast: float = 1.0,
     discard_reversals: int = 4,
+    fast_start: bool = True,
 ) -> CalibrationData:
     """A 2AFC staircase per stimulus, all stimuli in parallel.
 
@@ -235,6 +236,8 @@ def staircase_2afc(
     ``observer.p_correct(c, c_T, guess=max(observer.guess, 0.5))``. ``rule`` "Ndown1up" lowers the
     contrast by ``step_db`` (dB, 20 log10) after N consecutive correct answers and raises it after each
     error (capped at ``max_contrast``); it converges to P = 0.5^(1/N) correct (3down1up: 79.4 %).
+    With ``fast_start`` (Levitt 1971's rapid initial descent) the track steps down after every correct
+    answer by twice ``step_db`` until its first reversal.
     The threshold is the geometric mean of the contrasts at the reversals after the first
     ``discard_reversals`` (all reversals if there are not more). Rows whose staircase sat at
     ``max_contrast`` for the whole second half, whose estimate lies within 1.5 steps of ``max_contrast``
@@ -269,7 +272,8 @@ def staircase_2afc(
     for t in range(int(trials)):
         correct = rng.random(n) < observer.p_correct(10.0**log_c, c_t, guess=guess)
         run = np.where(correct, run + 1, 0)
-        down = correct & (run >= n_down)
+        fast = fast_start & (rev_count == 0)
+        down = correct & ((run >= n_down) | fast)
         up = ~correct
         direction = np.where(down, -1, np.where(up, 1, 0))
         reversal = (direction != 0) & (last_dir != 0) & (direction != last_dir)
@@ -278,7 +282,8 @@ def staircase_2afc(
         rev_sum += np.where(reversal & (rev_count > discard_reversals), log_c, 0.0)
         last_dir = np.where(direction != 0, direction, last_dir)
         run = np.where(down, 0, run)
-        log_c = np.clip(log_c - step * down + step * up, None, log_max)
+        size = np.where(fast, 2.0 * step, step)
+        log_c = np.clip(log_c - size * down + size * up, None, log_max)
         if t >= half:
             at_max += log_c >= log_max
     used = rev_count - discard_reversals

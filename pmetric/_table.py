@@ -265,6 +265,9 @@ class CalibratedCSF(CSFModel):
         return jnp.asarray(self.freqs, dtype)[p]
 
     # ------------------------------------------------------------------ exact inversions
+    def _eccentric_distance(self, c, theta, e, v):
+        return _jit_eccentric_distance(self, c, theta, e, v)
+
     def _threshold_frequency(self, c, e, v):
         return _jit_threshold_frequency(self, c, e, v)
 
@@ -302,17 +305,83 @@ class CalibratedCSF(CSFModel):
 
         Exact closed form ``k = 2 theta threshold_frequency(c)`` when the table does not depend on the
         eccentricity / velocity of the query (single eccentricity node and no more than one velocity
-        node) or when ``e`` and ``v`` are concrete zeros; otherwise the base class's generic solver.
+        node) or when ``e`` and ``v`` are concrete zeros. Otherwise a table-aware search: the margin
+        ``log c - log c_T(k / 2 theta, e / k, v / k)`` is scanned (in log k) over every breakpoint of the
+        table (k where the frequency, eccentricity or velocity crosses a grid node) with
+        ``_SUBDIV`` points between consecutive breakpoints, up to the provable bound beyond which the
+        extrapolated threshold exceeds ``c``; the crossing above the last perceptible point is refined
+        by safeguarded Newton, with the implicit-function gradient. A perceptible window narrower than
+        1/``_SUBDIV`` of a breakpoint interval can be missed (the margin is smooth inside an interval).
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
         indep = len(self.eccs) == 1 and (self.vels is None or len(self.vels) == 1)
         zero = all(not isinstance(x, jax.core.Tracer) and not np.asarray(x).any() for x in (e, v))
         if not (indep or zero):
-            return super().imperceptible_distance(c, theta, e, v)
+            return self._eccentric_distance(c, theta, e, v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, theta, e, v, self.log_thresholds)
         fmax = self._threshold_frequency(jnp.broadcast_to(c, shape), e, v)
         return (2.0 * jnp.broadcast_to(theta, shape) * fmax).astype(dtype)
+
+
+_SUBDIV = 16
+
+
+def _eccentric_distance_impl(m: CalibratedCSF, c, theta, e, v):
+    from ._inverse import bracketed_root, implicit_root
+
+    shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
+    dtype = jnp.result_type(c, theta, e, v, m.log_thresholds)
+    c, theta, e, v = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, e, v))
+    pos = theta > 0
+    th = jnp.where(pos, theta, 1.0)
+    sg = jax.lax.stop_gradient
+    cpos = c > 0
+    Y = sg(jnp.where(cpos, jnp.log10(jnp.where(cpos, c, 1.0)), -1e3))
+    lf = np.log10(np.asarray(m.freqs))
+    tmin_last = sg(jnp.min(m.log_thresholds[-1]).astype(dtype))
+    lf_hi = lf[-1] + jnp.maximum(Y - tmin_last, 0.0) / m.min_slope + 0.01
+    l2t = sg(jnp.log(2.0 * th))
+    w_lo = l2t + (lf[0] - 3.0) * _LN10
+    w_hi = l2t + lf_hi * _LN10
+    bps = [w_lo, w_hi] + [l2t + math.log(fi) for fi in m.freqs]
+    for x, nodes in ((e, m.eccs), (v, m.vels or ())):
+        xs = sg(x)
+        xpos = xs > 0
+        for n in nodes:
+            if n > 0:
+                bps.append(jnp.where(xpos, jnp.log(jnp.where(xpos, xs, 1.0)) - math.log(n), w_lo))
+    bps = jnp.sort(jnp.clip(jnp.stack(bps, axis=-1), w_lo[..., None], w_hi[..., None]), axis=-1)
+    nb = bps.shape[-1]
+    G = (nb - 1) * _SUBDIV + 1
+
+    def point(j):
+        i = jnp.minimum(j // _SUBDIV, nb - 2)
+        t = (j - i * _SUBDIV).astype(dtype) / _SUBDIV
+        a = jnp.take_along_axis(bps, i[..., None], axis=-1)[..., 0]
+        b = jnp.take_along_axis(bps, (i + 1)[..., None], axis=-1)[..., 0]
+        return a + t * (b - a)
+
+    def g(w):
+        return m._distance_margin(jnp.exp(w), c, th, e, v)
+
+    def g_sg(w):
+        return sg(m._distance_margin(jnp.exp(w), sg(c), sg(th), sg(e), sg(v)))
+
+    def scan(j, last):
+        jj = jnp.full(shape, j, jnp.int32)
+        return jnp.where(g_sg(point(jj)) >= 0, jj, last)
+
+    last = jax.lax.fori_loop(0, G, scan, jnp.full(shape, -1, jnp.int32))
+    found = (last >= 0) & cpos & pos
+    saturated = last == G - 1
+    a = point(jnp.maximum(last, 0))
+    b = point(jnp.minimum(jnp.maximum(last, 0) + 1, G - 1))
+    root = bracketed_root(g_sg, a, jnp.maximum(b, a + 1e-6))
+    ok = found & ~saturated
+    w = implicit_root(g, jnp.where(ok, root, a), mask=ok)
+    w = jnp.where(saturated, w_hi, w)
+    return jnp.where(found, jnp.exp(w), 0.0).astype(dtype)
 
 
 # One compiled graph per (shape, dtype) instead of dozens of eagerly dispatched ops; nested inside an
@@ -320,3 +389,4 @@ class CalibratedCSF(CSFModel):
 _jit_log10_threshold = eqx.filter_jit(lambda m, f, e, v: m._log10_threshold(f, e, v))
 _jit_peak = eqx.filter_jit(lambda m, e, v, shape, dtype: m._peak_impl(e, v, shape, dtype))
 _jit_threshold_frequency = eqx.filter_jit(lambda m, c, e, v: m._threshold_frequency_impl(c, e, v))
+_jit_eccentric_distance = eqx.filter_jit(_eccentric_distance_impl)

@@ -34,9 +34,14 @@ TREES = _build()
 NAMES = sorted(TREES)
 
 
-def _random_keys(tree, rng, ties):
+def _random_keys(tree, rng, ties, dtype=np.float64, culled_depth=None):
     k = rng.integers(0, 4, tree.n_nodes).astype(float) if ties else rng.random(tree.n_nodes) * 10
-    return optim.repair_monotone(tree, k)
+    k = optim.repair_monotone(tree, k)
+    if ties:  # signed zeros tie with zeros (as in the heap's float comparison)
+        k[(k == 0) & (rng.random(tree.n_nodes) < 0.5)] = -0.0
+    if culled_depth is not None:  # culled subtrees: -inf (monotone: depth grows downwards)
+        k[tree.depth >= culled_depth] = -np.inf
+    return k.astype(dtype)
 
 
 def _slow_repair(tree, keys):
@@ -69,11 +74,12 @@ def _is_closed(tree, unfolded):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(name=st.sampled_from(NAMES), seed=st.integers(0, 10**6), frac=st.floats(0, 1.05), ties=st.booleans())
-def test_budget_cut_equals_heap(name, seed, frac, ties):
+@given(name=st.sampled_from(NAMES), seed=st.integers(0, 10**6), frac=st.floats(0, 1.05), ties=st.booleans(),
+       f32=st.booleans(), culled=st.sampled_from([None, 2, 4]))
+def test_budget_cut_equals_heap(name, seed, frac, ties, f32, culled):
     t = TREES[name]
     rng = np.random.default_rng(seed)
-    k = _random_keys(t, rng, ties)
+    k = _random_keys(t, rng, ties, np.float32 if f32 else np.float64, culled)
     budget = int(frac * t.n_triangles)
     a = optim.budget_cut(t, k, budget)
     b = optim.budget_cut_heap(t, k, budget)
@@ -96,12 +102,12 @@ def test_budget_cut_many_ties_large_tree():
     """All keys equal: the order is pure node index (exercises the radix passes down to shift 0)."""
     v, f = optim.icosphere(4)
     t = optim.build_tree(v, f, method="qem")
-    k = np.ones(t.n_nodes)
-    for budget in (0, 1, 777, 2560, 5119):
-        a, b = optim.budget_cut(t, k, budget), optim.budget_cut_heap(t, k, budget)
-        np.testing.assert_array_equal(a.unfolded, b.unfolded)
-        assert a.triangles == b.triangles
-    k = optim.repair_monotone(t, np.random.default_rng(5).random(t.n_nodes).astype(np.float32))
+    for k in (np.ones(t.n_nodes), np.ones(t.n_nodes, np.float32)):
+        for budget in (0, 1, 777, 2560, 5119):
+            a, b = optim.budget_cut(t, k, budget), optim.budget_cut_heap(t, k, budget)
+            np.testing.assert_array_equal(a.unfolded, b.unfolded)
+            assert a.triangles == b.triangles
+    k = optim.repair_monotone(t, np.random.default_rng(5).random(t.n_nodes)).astype(np.float32)
     for budget in (100, 3000, 5000):
         a, b = optim.budget_cut(t, k, budget), optim.budget_cut_heap(t, k, budget)
         np.testing.assert_array_equal(a.unfolded, b.unfolded)

@@ -6,6 +6,8 @@ import csv
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import pmetric
 from pmetric import CalibrationData
@@ -182,3 +184,27 @@ def test_real_modelfest_observers(shared_dir):
 
 def test_public_export():
     assert pmetric.CalibrationData is CalibrationData
+
+
+_finite = dict(allow_nan=False, allow_infinity=False)
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(1e-3, 100.0, **_finite),   # f, cycles/deg
+            st.floats(-3.0, 0.5, **_finite),    # log10 threshold
+            st.floats(0.0, 80.0, **_finite),    # e, deg
+            st.floats(0.0, 50.0, **_finite),    # t_frequency, Hz
+            st.sampled_from(["a", "b,c", 'q"d', ""]),  # labels needing CSV quoting
+        ),
+        min_size=1,
+        max_size=8,
+    )
+)
+def test_csv_round_trip_property(tmp_path_factory, rows):
+    f, y, e, tf, lab = (list(x) for x in zip(*rows))
+    d = CalibrationData.from_arrays(f, y, e=e, t_frequency=tf, dataset=lab, observer=lab)
+    np.testing.assert_allclose(d.velocity * d.f, d.t_frequency, rtol=1e-12, atol=1e-300)
+    path = tmp_path_factory.mktemp("rt") / "d.csv"
+    _same(d, CalibrationData.from_csv(d.to_csv(path)))

@@ -43,7 +43,7 @@ def test_lambertw_m1_float32_and_gradient():
     x = -np.geomspace(1e-30, 0.367, 100).astype(np.float32)
     w = np.asarray(pm.lambertw_m1(jnp.asarray(x)))
     np.testing.assert_allclose(w, scipy.special.lambertw(x.astype(float), -1).real, rtol=1e-5)
-    g = np.asarray(jax.vmap(jax.grad(pm.lambertw_m1))(jnp.asarray(x)))
+    g = np.asarray(jax.jit(jax.vmap(jax.grad(pm.lambertw_m1)))(jnp.asarray(x)))
     ref = w / (x * (1 + w))
     np.testing.assert_allclose(g, ref, rtol=1e-4)
     gb = jax.grad(pm.lambertw_m1)(jnp.float32(-1 / np.e))  # branch point: finite
@@ -113,8 +113,8 @@ def test_closed_form_distance_matches_generic(name, x64):
 def test_distance_gradients_match_finite_differences(name, x64):
     m = MODELS[name]
     c, theta, e, v = 0.3, 0.2, 3.0, 0.5
-    fun = lambda *a: m.imperceptible_distance(*a)  # noqa: E731
-    g = jax.grad(fun, argnums=(0, 1, 2, 3))(c, theta, e, v)
+    fun = jax.jit(lambda *a: m.imperceptible_distance(*a))
+    g = jax.jit(jax.grad(fun, argnums=(0, 1, 2, 3)))(c, theta, e, v)
     x0 = np.array([c, theta, e, v])
     for i in range(4):
         h = 1e-6 * max(abs(x0[i]), 1.0)

@@ -103,7 +103,7 @@ def test_invisible_gratings_are_dropped(model):
     obs = SimulatedObserver(model, slope=math.inf)
     assert obs.threshold(st)[1] > 1
     assert list(fade_in_session(obs, st).f) == [4.0]
-    assert list(staircase_2afc(obs, st, trials=60).f) == [4.0]
+    assert list(staircase_2afc(obs, st, trials=150, start_contrast=0.05).f) == [4.0]
 
 
 def test_bad_arguments(model):
@@ -154,6 +154,8 @@ def test_cli_errors(tmp_path, capsys):
     assert main(["calibrate", "--simulate", "--grid", "1,2xaxb", "--out", str(out)]) == 2
     assert "--grid" in capsys.readouterr().err
     assert main(["calibrate", "--simulate", "--noise", "-1", "--out", str(out)]) == 2
+    assert main(["calibrate", "--simulate", "--model", "barten", "--grid", "300x0", "--out", str(out)]) == 2
+    assert "visible" in capsys.readouterr().err
     assert not out.exists()
     if hasattr(pmetric, "save_model"):
         mf = tmp_path / "model.json"

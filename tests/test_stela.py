@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import csv
 
 import equinox as eqx
@@ -195,7 +196,7 @@ def test_bad_input_errors():
         StelaCSF(sust_s_max=(1.0, 2.0))
     with pytest.raises(ValueError, match="area"):
         StelaCSF(area=0.0)
-    assert set(StelaCSF.param_bounds) <= {f.name for f in __import__("dataclasses").fields(StelaCSF)}
+    assert set(StelaCSF.param_bounds) <= {f.name for f in dataclasses.fields(StelaCSF)}
     for name, (lo, hi) in StelaCSF.param_bounds.items():
         val = np.asarray(getattr(m, name))
         assert (lo is None or (val >= lo).all()) and (hi is None or (val <= hi).all()), name

@@ -259,3 +259,60 @@ def test_shared_cow_both_methods():
         assert t.nbytes / t.n_triangles <= 200
         # the root's sphere bounds the whole model
         assert np.all(np.linalg.norm(t.vertices - t.center[0], axis=1) <= t.radius[0])
+
+
+def test_quadric_optimal_matches_linear_solve():
+    from optim._qem import quadric_optimal
+
+    rng = np.random.default_rng(3)
+    B = rng.normal(size=(50, 3, 3))
+    A = B @ B.transpose(0, 2, 1)
+    b = rng.normal(size=(50, 3))
+    m = rng.normal(size=(50, 3))
+    q = np.concatenate([A[:, 0, :], A[:, 1, 1:2], A[:, 1, 2:3], A[:, 2, 2:3], b, np.zeros((50, 1))], 1)
+    lam = 1e-3 * np.trace(A, axis1=1, axis2=2) / 3
+    want = np.linalg.solve(A + lam[:, None, None] * np.eye(3), (lam[:, None] * m - b)[..., None])[..., 0]
+    np.testing.assert_allclose(quadric_optimal(q, m), want, rtol=1e-8, atol=1e-10)
+    np.testing.assert_array_equal(quadric_optimal(np.zeros((2, 10)), m[:2]), m[:2])  # no planes: centroid
+
+
+def test_qem_proxies_on_a_flat_grid_are_centroids(trees):
+    """All planes are z = 0: the quadric pins z to 0 and the regulariser picks the centroid in x, y."""
+    t = trees[("grid", "qem")]
+    v = MESHES["grid"][0]
+    sup = _supported(t)
+    for n in np.flatnonzero(t.child_count > 0):
+        np.testing.assert_allclose(t.position[n], v[sup[n]].mean(0), atol=1e-6)
+
+
+def test_progress_flag_builds_the_same_tree():
+    v, f = optim.icosphere(1)
+    a = optim.build_tree(v, f, method="octree", progress=True)
+    b = optim.build_tree(v, f, method="octree")
+    np.testing.assert_array_equal(a.parent, b.parent)
+    np.testing.assert_array_equal(a.tri_node, b.tri_node)
+
+
+@pytest.mark.parametrize("method", ["octree", "qem"])
+def test_tiny_and_coincident_meshes(method):
+    one = optim.build_tree(TET_V[:3], [[0, 1, 2]], method=method)  # a single triangle
+    one.check()
+    assert one.num_subtris.sum() == 1 and one.n_vertices == 3
+    flat = optim.build_tree(np.zeros((3, 3)), [[0, 1, 2]], method=method)  # zero-area, all coincident
+    flat.check()
+    assert np.all(flat.radius == 0) and flat.mesh_report["zero_area"] == 1
+    v, f = optim.icosphere(1)  # two coincident copies: separate vertices at identical positions
+    t = optim.build_tree(np.concatenate([v, v]), np.concatenate([f, f + len(v)]), method=method)
+    t.check()
+    assert t.n_vertices == 2 * len(v) and t.num_subtris.sum() == 2 * len(f)
+
+
+def test_load_tree_rejects_inconsistent_arrays(trees, tmp_path):
+    t = trees[("ico2", "octree")]
+    p = t.save(tmp_path / "t.npz")
+    with np.load(p) as z:
+        data = {k: z[k] for k in z.files}
+    data["radius"] = data["radius"][:-1]
+    np.savez(tmp_path / "bad.npz", **data)
+    with pytest.raises(ValueError, match="radius.*corrupt"):
+        optim.load_tree(tmp_path / "bad.npz")

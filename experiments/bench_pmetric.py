@@ -1,0 +1,121 @@
+"""Benchmark: is_perceptible and imperceptible_distance over 10^6 random inputs, one jitted call per model.
+
+Prints evaluations per second (float32 and float64) and the speed-up of imperceptible_distance over a
+40-step bisection reference measured in the same run, and writes ``reports/bench_pmetric.md``.
+
+    .venv/bin/python experiments/bench_pmetric.py [--n 1000000] [--repeats 5] [--out reports/bench_pmetric.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import pmetric as pm
+
+
+def _models():
+    out = {
+        "ManosSakrison": pm.ManosSakrison(),
+        "KellyAbstract": pm.KellyAbstract(),
+        "KellySpatioTemporal(kelly1979)": pm.KellySpatioTemporal("kelly1979"),
+        "Eccentric(ManosSakrison)": pm.Eccentric(pm.ManosSakrison()),
+        "ReddyAcuity": pm.ReddyAcuity(xi=30.0),
+    }
+    for name in ("Barten", "StelaCSF"):
+        cls = getattr(pm, name, None)
+        if cls is not None:
+            try:
+                out[name] = cls()
+            except Exception as err:  # noqa: BLE001 - a model another engineer is still writing
+                print(f"skipping {name}: {err}")
+    return out
+
+
+def bisection_distance(model, c, theta, e, v, n_steps=40):
+    """Reference: 40-step bisection in log k on [2e-3 theta, 2e3 theta] (assumes monotone perceptibility)."""
+    lo = jnp.log(2e-3 * theta)
+    hi = jnp.log(2e3 * theta)
+
+    def body(_, s):
+        lo, hi = s
+        mid = 0.5 * (lo + hi)
+        k = jnp.exp(mid)
+        p = model.is_perceptible(c, k / (2 * theta), e / k, v / k)
+        return jnp.where(p, mid, lo), jnp.where(p, hi, mid)
+
+    lo, hi = jax.lax.fori_loop(0, n_steps, body, (lo, hi))
+    return jnp.exp(lo)
+
+
+def _time(fn, args, repeats):
+    out = fn(*args)
+    jax.block_until_ready(out)
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run(n, repeats, dtype_name):
+    rng = np.random.default_rng(0)
+    dtype = np.float32 if dtype_name == "float32" else np.float64
+    c = jnp.asarray(rng.uniform(0, 1, n), dtype)
+    f = jnp.asarray(np.exp(rng.uniform(np.log(1e-3), np.log(1e3), n)), dtype)
+    e = jnp.asarray(rng.uniform(0, 60, n), dtype)
+    v = jnp.asarray(np.where(rng.uniform(size=n) < 0.5, 0.0, rng.uniform(0, 100, n)), dtype)
+    theta = jnp.asarray(np.exp(rng.uniform(np.log(0.01), np.log(5), n)), dtype)
+    rows = []
+    for name, model in _models().items():
+        perc = jax.jit(lambda c, f, e, v, m=model: m.is_perceptible(c, f, e, v))
+        dist = jax.jit(lambda c, t, e, v, m=model: m.imperceptible_distance(c, t, e, v))
+        bis = jax.jit(lambda c, t, e, v, m=model: bisection_distance(m, c, t, e, v))
+        t_p = _time(perc, (c, f, e, v), repeats)
+        t_d = _time(dist, (c, theta, e, v), repeats)
+        t_b = _time(bis, (c, theta, e, v), max(1, repeats // 2))
+        rows.append((name, n / t_p / 1e6, n / t_d / 1e6, n / t_b / 1e6, t_b / t_d))
+        print(f"{dtype_name:8s} {name:32s} is_perceptible {rows[-1][1]:8.1f} M/s   imperceptible_distance "
+              f"{rows[-1][2]:8.2f} M/s   bisection {rows[-1][3]:6.2f} M/s   ratio {rows[-1][4]:6.1f}x", flush=True)
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=1_000_000)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", default="reports/bench_pmetric.md")
+    args = ap.parse_args(argv)
+    results = {"float32": run(args.n, args.repeats, "float32")}
+    with jax.enable_x64(True):
+        results["float64"] = run(args.n, args.repeats, "float64")
+    dev = jax.devices()[0]
+    lines = [
+        "# pmetric benchmark: is_perceptible and imperceptible_distance",
+        "",
+        f"Command: `.venv/bin/python experiments/bench_pmetric.py --n {args.n} --repeats {args.repeats}`",
+        f"Device: {dev.platform} ({dev.device_kind}); {platform.processor() or platform.machine()}; jax {jax.__version__}.",
+        f"{args.n:,} random inputs (c in [0,1], f log-uniform 1e-3..1e3 c/deg, e in [0,60] deg, v 0 or "
+        "[0,100] deg/s, theta log-uniform 0.01..5 deg), one jitted call per model, best of the repeats.",
+        "Bisection: 40-step bisection of is_perceptible in log k, measured in the same run (it assumes "
+        "monotone perceptibility, so it is a speed reference, not a correct answer for velocity terms).",
+        "Targets (2-core CPU, float32): is_perceptible >= 200 M/s, imperceptible_distance >= 50 M/s.",
+        "",
+    ]
+    for dt, rows in results.items():
+        lines += [f"## {dt}", "", "| model | is_perceptible (M/s) | imperceptible_distance (M/s) | 40-step bisection (M/s) | speed-up vs bisection |",
+                  "| --- | ---: | ---: | ---: | ---: |"]
+        lines += [f"| {r[0]} | {r[1]:.1f} | {r[2]:.2f} | {r[3]:.2f} | {r[4]:.1f}x |" for r in rows]
+        lines.append("")
+    pm.atomic_write_text(args.out, "\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""optim.View: camera geometry, display geometry, gaze and input checks (closed forms)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import pmetric
+from optim import View
+
+
+def test_projection_closed_form():
+    v = View(eye=(0, 0, 5), target=(0, 0, 0), fov_deg=60.0, image_size=(800, 600))
+    f = 300.0 / math.tan(math.radians(30.0))
+    assert v.focal_px == pytest.approx(f)
+    xy, depth = v.project([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 6]])
+    assert xy[0] == pytest.approx([400.0, 300.0])
+    assert xy[1] == pytest.approx([400.0 + f / 5.0, 300.0])  # x to the right
+    assert xy[2] == pytest.approx([400.0, 300.0 - f / 5.0])  # y up in the world = up on the screen
+    assert depth[:3] == pytest.approx([5.0, 5.0, 5.0])
+    assert depth[3] == pytest.approx(-1.0) and np.isinf(xy[3]).all()  # behind the camera
+
+
+def test_rotation_is_orthonormal_and_looks_at_target():
+    v = View(eye=(3, -2, 7), target=(1, 1, 1), up=(0, 0, 1))
+    r = v.rotation
+    assert r @ r.T == pytest.approx(np.eye(3), abs=1e-12)
+    fwd = (v.target - v.eye) / np.linalg.norm(v.target - v.eye)
+    assert -r[2] == pytest.approx(fwd)
+
+
+def test_default_display_geometry():
+    d = pmetric.Display.default()
+    v = View(eye=(0, 0, 5))
+    assert (v.width, v.height) == d.resolution
+    # the image spans the screen: its left edge is 23 deg from the centre (46 deg screen, seed 004)
+    assert v.visual_angle_px([0, 540], [960, 540]) == pytest.approx(23.0, abs=1e-6)
+    # default camera field of view = what the screen subtends vertically
+    h_deg = math.degrees(2 * math.atan(float(d.height) / (2 * float(d.distance))))
+    assert v.fov_deg == pytest.approx(h_deg)
+    assert v.degrees_per_pixel == pytest.approx(float(d.degrees_per_pixel()))
+
+
+def test_framing_subtends_object_deg():
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(200, 3)) * [1.0, 2.0, 0.5] + [3.0, -1.0, 2.0]
+    v = View.framing(pts, 30.0, direction=(1, 1, 0))
+    centre = 0.5 * (pts.min(0) + pts.max(0))
+    radius = np.sqrt(((pts - centre) ** 2).sum(1).max())
+    dist = np.linalg.norm(v.eye - centre)
+    assert 2 * math.degrees(math.asin(radius / dist)) == pytest.approx(30.0)
+    assert v.target == pytest.approx(centre)
+    # a direction parallel to the default up still gives a valid camera
+    View.framing(pts, 30.0, direction=(0, 1, 0))
+
+
+def test_gaze_forms():
+    v = View(eye=(0, 0, 5))
+    assert v.gaze_px == pytest.approx(np.array([[960.0, 540.0]]))
+    assert View(eye=(0, 0, 5), gaze=None).gaze_px is None
+    g = View(eye=(0, 0, 5), gaze=[[10, 20], [30, 40]]).gaze_px
+    assert g.shape == (2, 2) and g[1] == pytest.approx([30, 40])
+    # a gaze direction is projected: looking at the target = the image centre
+    d = View(eye=(0, 0, 5), gaze=[0, 0, -1]).gaze_px
+    assert d == pytest.approx(np.array([[960.0, 540.0]]))
+
+
+def test_previous_view_and_dt():
+    a = View(eye=(0, 0, 5))
+    b = View(eye=(0.1, 0, 5), previous=a, dt_s=1 / 60)
+    assert b.previous is a and b.dt_s == pytest.approx(1 / 60)
+    assert a.dt_s == 0.0
+
+
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        (dict(eye=(1, 2)), "eye must be three numbers"),
+        (dict(eye=(0, 0, 0)), "eye and target coincide"),
+        (dict(eye=(0, 5, 0)), "up must not be parallel"),
+        (dict(eye=(0, 0, 5), fov_deg=180), "fov_deg"),
+        (dict(eye=(0, 0, 5), fov_deg=-1), "fov_deg"),
+        (dict(eye=(0, 0, 5), gaze="left"), "gaze must be"),
+        (dict(eye=(0, 0, 5), gaze=np.zeros((2, 4))), "gaze must be"),
+        (dict(eye=(0, 0, 5), gaze=[0, 0, 1]), "behind the camera"),
+        (dict(eye=(0, 0, 5), gaze_error_deg=-1), "gaze_error_deg"),
+        (dict(eye=(0, 0, 5), dt_s=0.1), "dt_s given without a previous view"),
+        (dict(eye=(0, 0, 5), display="46deg"), "pmetric.Display"),
+        (dict(eye=(0, 0, 5), image_size=(0, 10)), "image_size"),
+        (dict(eye=(0, 0, float("nan"))), "finite"),
+        (dict(eye=(0, 0, 5), background=2.0), "background"),
+    ],
+)
+def test_bad_input_names_the_problem(kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        View(**kw)
+
+
+def test_previous_needs_dt():
+    with pytest.raises(ValueError, match="dt_s"):
+        View(eye=(0, 0, 5), previous=View(eye=(0, 0, 4)))
