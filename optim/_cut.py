@@ -12,7 +12,7 @@ folded; repeatedly take the *boundary* node (folded, parent unfolded) with the g
 lower node index first - and unfold it if its subtris fit in the budget; stop at the first that does
 not fit. With monotone keys every node's parent precedes it in the order (key desc, index asc), so
 the greedy sequence is that sorted order and the cut is its longest prefix whose triangle sum fits.
-:func:`budget_cut` finds that prefix by a weighted radix selection on the keys (16 bits per pass,
+:func:`budget_cut` finds that prefix by a weighted radix selection on 32-bit key codes (two 16-bit passes,
 O(N)), sorting only the few candidates at the boundary: the identical cut, without a full sort.
 """
 
@@ -160,35 +160,43 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
     if total <= budget:
         unfolded[internal] = True
         return Cut(unfolded, total, 0.0, "all_unfolded")
-    code = _desc_rank_bits(ki)
-    # weighted radix selection, 16 bits per pass from the top: find the item (order: code asc,
-    # index asc) at which the running triangle sum first exceeds the budget
+    # weighted radix selection on 32-bit codes, 16 bits per pass from the top: find the item (order:
+    # key desc, index asc) at which the running triangle sum first exceeds the budget. float64 keys
+    # are rounded to float32 for the passes (rounding is monotone, so a strictly smaller 32-bit code
+    # means a strictly larger key); the final candidates are ordered by their exact keys.
+    code = _desc_rank_bits(ki if ki.dtype == np.float32 else ki.astype(np.float32))
     cand = None  # None = all items
     base = 0.0
-    shift = code.dtype.itemsize * 8 - 16
-    mask16 = code.dtype.type(0xFFFF)
-    while True:
+    for shift in (16, 0):
         cc = code if cand is None else code.take(cand)
         wc = w if cand is None else w.take(cand)
-        b = ((cc >> code.dtype.type(shift)) & mask16).astype(np.intp)
+        b = ((cc >> np.uint32(shift)) & np.uint32(0xFFFF)).astype(np.intp)
         cum = np.cumsum(np.bincount(b, weights=wc, minlength=65536))
         j = int(np.searchsorted(cum, budget - base, side="right"))  # first bucket whose running sum > budget
         if j > 0:
             base += float(cum[j - 1])
         sel = np.flatnonzero(b == j)
         cand = sel if cand is None else cand.take(sel)
-        if cand.size <= 4096 or shift == 0:
+        if cand.size <= 4096:
             break
-        shift -= 16
     # exact order among the candidates (cand is ascending in index already)
-    cs = cand[np.lexsort((cand, code.take(cand)))]
+    cs = cand[np.lexsort((cand, _desc_rank_bits(ki.take(cand))))]
     run = base + np.cumsum(w.take(cs), dtype=np.float64)
     m = int(np.searchsorted(run, budget, side="right"))  # cs[m] is the first that does not fit
     stop = int(cs[m])
-    unfolded[internal] = code < code[stop]  # everything strictly ahead of the stop's key
-    unfolded[internal.take(cs[:m])] = True  # and the candidates before it (its ties of lower index)
+    unfolded = k > ki[stop]  # everything with a greater key than the stop's ...
+    unfolded &= _is_internal(tree)
+    unfolded[internal.take(cs[:m])] = True  # ... and the candidates before it (its ties of lower index)
     tri = int(run[m - 1]) if m > 0 else int(base)
     return Cut(unfolded, tri, float(ki[stop]), "budget")
+
+
+def _is_internal(tree) -> np.ndarray:
+    m = tree.__dict__.get("_is_internal")
+    if m is None:
+        m = tree.child_count > 0
+        tree.__dict__["_is_internal"] = m
+    return m
 
 
 def _internal_subtris(tree) -> np.ndarray:
@@ -320,11 +328,11 @@ def extract(tree, cut):
 
 
 def _extract_index(tree):
-    """Per-tree caches for :func:`extract` (intp copies avoid a conversion per view):
-    ``parent`` (N,), ``tri_node`` (T,) and the depth-first leaf position of each vertex (V,)."""
+    """``parent`` (N,), ``tri_node`` (T,) and the depth-first leaf position of each vertex (V,) intp,
+    which :func:`extract` needs every view (cached on the tree: 8 bytes per vertex)."""
     c = tree.__dict__.get("_extract_index")
     if c is None:
-        c = (tree.parent.astype(np.intp), tree.tri_node.astype(np.intp),
+        c = (tree.parent, tree.tri_node,
              tree.leaf_lo.take(tree.vertex_node).astype(np.intp))
         tree.__dict__["_extract_index"] = c
     return c

@@ -161,8 +161,7 @@ class Posterior:
         prob = self._problem
         with jax.enable_x64(True):
             fixed, arrays = _device_args(prob)
-            f = jax.jit(jax.vmap(lambda th: _model_log10(th, fixed, arrays, prob.static)))
-            return np.asarray(f(jnp.asarray(self._theta[idx])))
+            return np.asarray(_log10_batch(jnp.asarray(self._theta[idx]), fixed, arrays, prob.static))
 
     def summary(self) -> str:
         lo, hi = self.interval(0.95)
@@ -176,57 +175,64 @@ class Posterior:
         return "\n".join(lines)
 
 
-def _model_log10(theta, fixed, arrays, st):
-    from ._fit import _predict_log10
+def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
+    """Log posterior of one coordinate vector x = (theta, [ln sigma]) (see the module docstring)."""
+    n = arrays["y"].shape[0]
+    ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
+    theta = x[: st.n_free]
+    lp = jnp.zeros((), x.dtype)
+    off = 0
+    for leaf, prior in zip(st.spec, per_leaf):
+        u = theta[off:off + leaf.size]
+        if prior is None:
+            # default: flat in the unconstrained coordinate within +-box of the least-squares value
+            ref = theta_ref[off:off + leaf.size]
+            lp = lp + jnp.sum(jnp.where(jnp.abs(u - ref) <= box, 0.0, -jnp.inf))
+        else:
+            val, dxdu = _from_u(u, leaf)
+            adx = jnp.abs(dxdu)
+            ok = adx > 0
+            logjac = jnp.where(ok, jnp.log(jnp.where(ok, adx, 1.0)), -jnp.inf)
+            lp = lp + jnp.sum(prior.log_prob(val) + logjac)
+        off += leaf.size
+    if st.n_free > st.n_model:  # multipliers: flat in log10 m within +-box
+        w = theta[st.n_model:]
+        lp = lp + jnp.sum(jnp.where(jnp.abs(w) <= box, 0.0, -jnp.inf))
+    r = _residuals(theta, fixed, arrays, st)
+    if sigma is None:
+        ln_s = x[st.n_free]
+        lp = lp + jnp.where((ln_s >= ln_lo) & (ln_s <= ln_hi), 0.0, -jnp.inf)
+        ln_s = jnp.clip(ln_s, ln_lo, ln_hi)
+    else:
+        ln_s = jnp.log(jnp.asarray(sigma, x.dtype))
+    ll = -0.5 * jnp.sum(r * r) * jnp.exp(-2.0 * ln_s) - n * ln_s - 0.5 * n * math.log(2 * math.pi)
+    out = lp + ll
+    return jnp.where(jnp.isnan(out), -jnp.inf, out)
 
-    return _predict_log10(theta, fixed, arrays, st)
+
+@eqx.filter_jit
+def _logpost_batch(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
+    """Vectorised log posterior, x of shape (nwalkers, ndim) -> (nwalkers,); compiled once per problem."""
+    return jax.vmap(lambda xi: _logpost_one(xi, theta_ref, fixed, arrays, st, per_leaf, sigma, box))(x)
+
+
+@eqx.filter_jit
+def _jacobian(theta, fixed, arrays, st):
+    return jax.jacfwd(lambda th: _residuals(th, fixed, arrays, st))(theta)
 
 
 def _build_logpost(prob: _Problem, priors: Mapping[str, Any], sigma: float | None, theta_ref: np.ndarray,
-                   box: float):
-    """Return (log posterior of one coordinate vector, dimension). Coordinates: theta (+ ln sigma)."""
+                   box: float, *, batched: bool = False):
+    """Return (log posterior of one coordinate vector -- or of a batch with ``batched`` --, dimension)."""
     st = prob.static
     fixed, arrays = _device_args(prob)
-    n = arrays["y"].shape[0]
-    per_leaf = []
-    for leaf in st.spec:
-        per_leaf.append(priors.get(leaf.name, priors.get(leaf.field)))
-    theta_ref = jnp.asarray(theta_ref)
-    free_sigma = sigma is None
-    ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
-
-    def logpost(x):
-        theta = x[: st.n_free]
-        lp = jnp.zeros((), x.dtype)
-        off = 0
-        for leaf, prior in zip(st.spec, per_leaf):
-            u = theta[off:off + leaf.size]
-            if prior is None:
-                # default: flat in the unconstrained coordinate within +-box of the least-squares value
-                ref = theta_ref[off:off + leaf.size]
-                lp = lp + jnp.sum(jnp.where(jnp.abs(u - ref) <= box, 0.0, -jnp.inf))
-            else:
-                val, dxdu = _from_u(u, leaf)
-                adx = jnp.abs(dxdu)
-                ok = adx > 0
-                logjac = jnp.where(ok, jnp.log(jnp.where(ok, adx, 1.0)), -jnp.inf)
-                lp = lp + jnp.sum(prior.log_prob(val) + logjac)
-            off += leaf.size
-        if st.n_free > st.n_model:  # multipliers: flat in log10 m within +-box
-            w = theta[st.n_model:]
-            lp = lp + jnp.sum(jnp.where(jnp.abs(w) <= box, 0.0, -jnp.inf))
-        r = _residuals(theta, fixed, arrays, st)
-        if free_sigma:
-            ln_s = x[st.n_free]
-            lp = lp + jnp.where((ln_s >= ln_lo) & (ln_s <= ln_hi), 0.0, -jnp.inf)
-            ln_s = jnp.clip(ln_s, ln_lo, ln_hi)
-        else:
-            ln_s = jnp.log(jnp.asarray(sigma, x.dtype))
-        ll = -0.5 * jnp.sum(r * r) * jnp.exp(-2.0 * ln_s) - n * ln_s - 0.5 * n * math.log(2 * math.pi)
-        out = lp + ll
-        return jnp.where(jnp.isnan(out), -jnp.inf, out)
-
-    return logpost, st.n_free + (1 if free_sigma else 0)
+    per_leaf = tuple(priors.get(leaf.name, priors.get(leaf.field)) for leaf in st.spec)
+    args = (jnp.asarray(theta_ref), fixed, arrays, st, per_leaf, None if sigma is None else float(sigma),
+            float(box))
+    ndim = st.n_free + (1 if sigma is None else 0)
+    if batched:
+        return (lambda x: _logpost_batch(x, *args)), ndim
+    return (lambda x: _logpost_one(x, *args)), ndim
 
 
 def fit_mcmc(
@@ -291,15 +297,14 @@ def fit_mcmc(
         # least-squares optimum in the unconstrained coordinates, and its standard errors there
         theta_hat = np.asarray(lsq.theta, np.float64)
         fixed, arrays = _device_args(prob)
-        r_hat = np.asarray(_residuals(jnp.asarray(theta_hat), fixed, arrays, prob.static))
-        jac = np.asarray(jax.jacfwd(lambda th: _residuals(th, fixed, arrays, prob.static))(jnp.asarray(theta_hat)))
+        r_hat = np.asarray(lsq.residuals) * prob.arrays["sw"]
+        jac = np.asarray(_jacobian(jnp.asarray(theta_hat), fixed, arrays, prob.static))
         s2 = float(np.sum(r_hat ** 2) / max(len(r_hat) - len(theta_hat), 1))
         cov_u = np.linalg.pinv(jac.T @ jac, hermitian=True) * s2
         sd_u = np.sqrt(np.clip(np.diag(cov_u), 1e-16, None))
-        logpost, ndim = _build_logpost(prob, priors, sigma, theta_hat, box)
+        vlogpost, ndim = _build_logpost(prob, priors, sigma, theta_hat, box, batched=True)
         if nwalkers < 2 * ndim or nwalkers % 2:
             raise ValueError(f"nwalkers must be even and >= 2 x {ndim} (the dimension), got {nwalkers}")
-        vlogpost = jax.jit(jax.vmap(logpost))
         rng = np.random.default_rng(seed)
         centre = theta_hat if sigma is not None else np.append(theta_hat, 0.5 * math.log(max(s2, 1e-8)))
         spread = sd_u if sigma is not None else np.append(sd_u, 0.05)
@@ -329,7 +334,7 @@ def fit_mcmc(
         flat = chain[burn::thin].reshape(-1, ndim)
         lps = sampler.get_log_prob()[burn::thin].reshape(-1)
         theta_s = flat[:, : prob.static.n_free]
-        samples = np.asarray(jax.jit(jax.vmap(lambda th: _natural_jax(th, prob)))(jnp.asarray(theta_s)))
+        samples = np.asarray(_natural_batch(jnp.asarray(theta_s), prob.static))
         sig = np.exp(flat[:, -1]) if sigma is None else np.full(len(flat), float(sigma))
     tau_max = float(np.max(tau))
     converged = bool(np.isfinite(tau_max) and nsteps >= _AUTOCORR_FACTOR * tau_max)
@@ -345,17 +350,29 @@ def fit_mcmc(
     )
 
 
-def _natural_jax(theta, prob):
+@eqx.filter_jit
+def _natural_batch(thetas, st):
+    """Natural values of a batch of unconstrained vectors: (n, p_free) -> (n, p_natural)."""
     from ._fit import _log10_multipliers
 
-    out, off = [], 0
-    for s in prob.static.spec:
-        x, _ = _from_u(theta[off:off + s.size], s)
-        out.append(x)
-        off += s.size
-    if prob.static.multipliers:
-        out.append(_log10_multipliers(theta, prob.static))
-    return jnp.concatenate(out)
+    def one(theta):
+        out, off = [], 0
+        for s in st.spec:
+            x, _ = _from_u(theta[off:off + s.size], s)
+            out.append(x)
+            off += s.size
+        if st.multipliers:
+            out.append(_log10_multipliers(theta, st))
+        return jnp.concatenate(out)
+
+    return jax.vmap(one)(thetas)
+
+
+@eqx.filter_jit
+def _log10_batch(thetas, fixed, arrays, st):
+    from ._fit import _predict_log10
+
+    return jax.vmap(lambda th: _predict_log10(th, fixed, arrays, st))(thetas)
 
 
 def conservative(posterior: Posterior, q: float = 0.95, *, predictive: bool = True, n_draws: int = 400,

@@ -85,8 +85,8 @@ def check_inputs(_method: str, **arrays):
 def _log_guard(x):
     """log(x) for x >= 0 with finite value and gradient at 0 (log of the smallest normal instead)."""
     x = jnp.asarray(x)
-    tiny = jnp.finfo(x.dtype).tiny
-    return jnp.log(jnp.maximum(x, tiny))
+    # floor 1e-30 (log = -69, beyond LOG_CT_MAX): 1/floor stays finite in float32 gradients
+    return jnp.log(jnp.maximum(x, 1e-30))
 
 
 class CSFModel(eqx.Module):

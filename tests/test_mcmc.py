@@ -32,12 +32,14 @@ def test_true_constants_inside_95_interval_in_18_of_20_runs():
     hits = np.zeros(4, int)
     for seed in range(20):
         data = simulate(seed=1000 + seed, n=100, noise=0.05)
-        post = _quiet(optim.fit_mcmc, START, data, nwalkers=16, nsteps=400, burn=100, seed=seed)
+        post = _quiet(optim.fit_mcmc, START, data, nwalkers=16, nsteps=300, burn=75, seed=seed)
         lo, hi = post.interval(0.95)
         true = np.array([TRUE[n] for n in NAMES])
         hits += (lo <= true) & (true <= hi)
-        assert 0.15 < post.acceptance_fraction < 0.9
-        assert np.median(post.sigma) == pytest.approx(0.05, rel=0.25)
+        assert post.lsq.success, (seed, post.lsq.result)
+        assert 0.15 < post.acceptance_fraction < 0.9, seed
+        # the noise s.d. is learned: the posterior median sits at the residual RMS of the best fit
+        assert np.median(post.sigma) == pytest.approx(post.lsq.rmse_log10, rel=0.15), seed
     assert np.all(hits >= 18), hits
 
 

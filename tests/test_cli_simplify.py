@@ -1,0 +1,133 @@
+"""``plod simplify``: JSON output, budgets, imperceptible mode, the tree cache, atomic output and
+one-line errors for bad flags."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import optim
+from experiments.cli import main
+
+
+@pytest.fixture(scope="module")
+def mesh_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("mesh")
+    v, f = optim.icosphere(3)
+    return optim.save_mesh(d / "sphere.obj", v, f)
+
+
+@pytest.fixture(autouse=True)
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("PLOD_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def _run(capsys, *argv):
+    code = main(["simplify", *map(str, argv)])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_budget_json_and_output_file(capsys, mesh_file, tmp_path, cache):
+    out = tmp_path / "small.ply"
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--out", out, "--method", "octree")
+    assert code == 0
+    res = json.loads(stdout)
+    assert res["input_triangles"] == 1280
+    assert 0 < res["output_triangles"] <= 300
+    assert res["stop_reason"] == "budget"
+    assert res["imperceptible_distance"] > 0
+    assert set(res["timings_ms"]) >= {"build", "score", "cut", "extract"}
+    assert res["tree_cache"] == "miss"
+    v, f, _ = optim.load_mesh(out)
+    assert f.shape[0] == res["output_triangles"] and v.shape[0] == res["output_vertices"]
+    assert not list(tmp_path.glob(".small.ply.*"))  # no temporary file left behind
+    assert len(list(cache.glob("*.npz"))) == 1
+    # second run: the tree comes from the cache and the result is identical
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--method", "octree")
+    res2 = json.loads(stdout)
+    assert res2["tree_cache"] == "hit" and res2["output_triangles"] == res["output_triangles"]
+
+
+def test_imperceptible_mode_and_view_flags(capsys, mesh_file):
+    code, stdout, _ = _run(capsys, mesh_file, "--imperceptible", "--json", "--method", "octree", "--no-cache",
+                           "--eye", "0,0,40", "--gaze", "100,100", "--gaze-error", "15")
+    assert code == 0
+    res = json.loads(stdout)
+    assert res["stop_reason"] in ("imperceptible", "all_unfolded")
+    assert res["imperceptible_distance"] <= 1.0
+    assert res["output_triangles"] <= res["input_triangles"]
+    # size metric, the rich table instead of JSON
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 100, "--metric", "size", "--method", "octree",
+                           "--screen-deg", "60", "--distance-m", "0.5", "--model", "ManosSakrison")
+    assert code == 0 and "triangles" in stdout and "1,280" in stdout
+
+
+def test_budget_larger_than_mesh_keeps_everything(capsys, mesh_file):
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 10**6, "--json", "--method", "octree", "--no-gaze",
+                           "--eye", "0,0,3")
+    res = json.loads(stdout)
+    # back-facing nodes are folded even with an unlimited budget; the visible half stays
+    assert res["stop_reason"] in ("all_unfolded", "budget")
+    assert 600 <= res["output_triangles"] <= 1280
+
+
+@pytest.mark.parametrize(
+    "argv, msg",
+    [
+        (["--budget", "10", "--eye", "1,2"], "--eye needs three comma-separated numbers"),
+        (["--budget", "10", "--eye", "0,0,5", "--target", "a,b,c"], "--target needs three comma-separated numbers"),
+        (["--budget", "ten"], "--budget needs a whole number"),
+        (["--budget", "-3"], "--budget must be >= 0"),
+        (["--budget", "10", "--fov", "200"], "--fov must be"),
+        (["--budget", "10", "--gaze", "5"], "--gaze needs two comma-separated numbers"),
+        (["--budget", "10", "--gaze-error", "-1"], "--gaze-error must be"),
+        (["--budget", "10", "--model", "Nobody"], "unknown model 'Nobody'"),
+        (["--budget", "10", "--model", "missing.json"], "file not found"),
+        (["--imperceptible", "--metric", "size"], "--imperceptible needs --metric perceptual"),
+        (["--budget", "10", "--out", "x.xyz"], "cannot write"),
+        (["--budget", "10", "--target", "0,0,0"], "--target needs --eye"),
+    ],
+)
+def test_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
+    code, _, err = _run(capsys, mesh_file, *argv)
+    assert code == 2
+    assert msg in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_never_overwrites_the_input(capsys, mesh_file):
+    before = mesh_file.read_bytes()
+    code, _, err = _run(capsys, mesh_file, "--budget", 10, "--out", mesh_file)
+    assert code == 2 and "input mesh" in err
+    assert mesh_file.read_bytes() == before
+
+
+def test_missing_mesh(capsys, tmp_path):
+    code, _, err = _run(capsys, tmp_path / "nope.ply", "--budget", 10)
+    assert code == 2 and "not found" in err
+
+
+def test_mode_is_required(capsys, mesh_file):
+    with pytest.raises(SystemExit):
+        main(["simplify", str(mesh_file)])
+    with pytest.raises(SystemExit):
+        main(["simplify", str(mesh_file), "--budget", "5", "--imperceptible"])
+    capsys.readouterr()
+
+
+def test_default_view_frames_the_object_at_30_degrees(mesh_file):
+    from experiments._cmd_simplify import build_view, register  # noqa: F401
+    import argparse
+
+    p = argparse.ArgumentParser()
+    sub = p.add_subparsers()
+    register(sub)
+    args = p.parse_args(["simplify", str(mesh_file), "--budget", "5"])
+    v, _, _ = optim.load_mesh(mesh_file)
+    view = build_view(v, args)
+    r = np.sqrt((v ** 2).sum(1).max())
+    assert 2 * np.degrees(np.arcsin(r / np.linalg.norm(view.eye))) == pytest.approx(30.0, rel=1e-6)

@@ -1,0 +1,168 @@
+"""Analytic CSF models: published / hand-computed points, gradients, edges, jit/vmap, bad input."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import pmetric as pm
+
+FACTORIES = {
+    "manos": lambda: pm.ManosSakrison(),
+    "kelly_abstract": lambda: pm.KellyAbstract(),
+    "kelly1979": lambda: pm.KellySpatioTemporal("kelly1979"),
+    "reddy_st": lambda: pm.KellySpatioTemporal("reddy"),
+    "eccentric": lambda: pm.Eccentric(pm.KellySpatioTemporal()),
+}
+
+
+@pytest.fixture
+def x64():
+    with jax.enable_x64(True):
+        yield
+
+
+def test_manos_sakrison_published_peak():
+    f = np.linspace(7.0, 9.0, 2001)
+    a = np.asarray(pm.ManosSakrison.shape(f))
+    assert a.max() == pytest.approx(0.9809, abs=5e-5)
+    assert f[a.argmax()] == pytest.approx(7.89, abs=5e-3)  # float32: the peak is flat
+    m = pm.ManosSakrison(peak_sensitivity=250.0)
+    assert float(m.peak_frequency()) == pytest.approx(7.891, abs=1e-3)
+    assert float(m.sensitivity(m.peak_frequency())) == pytest.approx(250.0, rel=1e-5)
+    # the seed's printed 0.144 moves the peak to 7.89 * 0.114 / 0.144
+    mp = pm.ManosSakrison(printed_constant=True)
+    assert float(mp.peak_frequency()) == pytest.approx(7.8909 * 0.114 / 0.144, rel=1e-4)
+    # hand-computed: A(20) = 2.6 (0.0192 + 2.28) exp(-2.28^1.1)
+    assert float(pm.ManosSakrison.shape(20.0)) == pytest.approx(2.6 * 2.2992 * math.exp(-(2.28**1.1)), rel=1e-5)
+
+
+def test_kelly_spatiotemporal_hand_points(x64):
+    k = pm.KellySpatioTemporal("kelly1979")
+    ref = (6.1 + 7.3 * abs(math.log10(10 / 3)) ** 3) * 10 * 25 * math.exp(-2 * 5 * 12 / 45.9)
+    assert float(k.sensitivity(5.0, v=10.0)) == pytest.approx(ref, rel=1e-12)
+    r = pm.KellySpatioTemporal("reddy")
+    ref = (250.1 + 299.3 * abs(math.log10(10 / 3)) ** 3) * 10 * 4 * 10 ** (-5.5 * 2 * 12 / 45.9)
+    assert float(r.sensitivity(2.0, v=10.0)) == pytest.approx(ref, rel=1e-12)
+    # velocity below 0.1 deg/s is treated as 0.1
+    assert float(k.sensitivity(3.0, v=0.0)) == float(k.sensitivity(3.0, v=0.1))
+    assert float(k.peak_frequency(v=3.0)) == pytest.approx(45.9 / 5, rel=1e-12)
+    with pytest.raises(ValueError, match="unknown Kelly constant set"):
+        pm.KellySpatioTemporal("kelly1975")
+
+
+def test_kelly_abstract_and_rovamo_virsu(x64):
+    m = pm.KellyAbstract(delta=0.4, f0=2.0)  # the seed's own form: 1/c_T = 0.4 f^2 e^-f
+    assert float(m.sensitivity(3.0)) == pytest.approx(0.4 * 9 * math.exp(-3), rel=1e-12)
+    assert float(m.sensitivity(3.0, e=10.0)) == pytest.approx(0.4 * 3.9**2 * 9 * math.exp(-3 * 3.9), rel=1e-12)
+    d = pm.KellyAbstract()
+    assert float(d.sensitivity(4.0)) == pytest.approx(200.0, rel=1e-12)
+    assert float(d.peak_frequency(10.0)) == pytest.approx(4.0 / 3.9, rel=1e-12)
+    rv = pm.RovamoVirsu()
+    assert float(rv(10.0)) == pytest.approx(1 / (1 + 2.9 + 0.012), rel=1e-12)
+    assert float(pm.RovamoVirsu("linear")(10.0)) == pytest.approx(1 / 3.9, rel=1e-12)
+    with pytest.raises(ValueError, match="unknown RovamoVirsu form"):
+        pm.RovamoVirsu("quadratic")
+    ecc = pm.Eccentric(pm.ManosSakrison())
+    ms = pm.ManosSakrison()
+    assert float(ecc.sensitivity(2.0, 10.0)) == pytest.approx(float(ms.sensitivity(2.0 * 3.912)), rel=1e-12)
+    assert float(ecc.peak_frequency(10.0)) == pytest.approx(float(ms.peak_frequency()) / 3.912, rel=1e-12)
+    with pytest.raises(ValueError, match="already depends on eccentricity"):
+        pm.Eccentric(pm.KellyAbstract())
+
+
+def _fd_check(fun, x0, rel=1e-5):
+    g = jax.grad(fun)(x0)
+    flat, unravel = jax.flatten_util.ravel_pytree(x0)
+    gflat, _ = jax.flatten_util.ravel_pytree(g)
+    for i in range(flat.size):
+        h = 1e-6 * max(abs(float(flat[i])), 1.0)
+        fp = fun(unravel(flat.at[i].add(h)))
+        fm = fun(unravel(flat.at[i].add(-h)))
+        fd = (float(fp) - float(fm)) / (2 * h)
+        assert float(gflat[i]) == pytest.approx(fd, rel=rel, abs=1e-8), (i, gflat[i], fd)
+
+
+@pytest.mark.parametrize("name", list(FACTORIES))
+def test_gradients_match_finite_differences(name, x64):
+    import jax.flatten_util  # noqa: F401
+
+    model = FACTORIES[name]()
+    # w.r.t. inputs
+    _fd_check(lambda x: model.log_sensitivity(x[0], x[1], x[2]), jnp.array([6.0, 4.0, 2.0]))
+    _fd_check(lambda x: model.threshold_frequency(x[0], x[1], x[2]), jnp.array([0.2, 4.0, 2.0]))
+    # w.r.t. constants (every array field)
+    params, static = eqx.partition(model, eqx.is_inexact_array)
+    _fd_check(lambda p: eqx.combine(p, static).log_sensitivity(6.0, 4.0, 2.0), params)
+    _fd_check(lambda p: eqx.combine(p, static).imperceptible_distance(0.2, 0.3, 4.0, 2.0), params, rel=1e-4)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("name", list(FACTORIES))
+def test_finite_values_and_gradients_on_dense_grid(name, dtype):
+    with jax.enable_x64(dtype == "float64"):
+        model = FACTORIES[name]()
+        dt = jnp.dtype(dtype)
+        f = jnp.asarray(np.concatenate([[0.0], np.geomspace(1e-3, 1e3, 13)]), dt)[:, None, None, None]
+        e = jnp.asarray([0.0, 1.0, 30.0, 120.0], dt)[None, :, None, None]
+        v = jnp.asarray([0.0, 0.05, 3.0, 1000.0], dt)[None, None, :, None]
+        c = jnp.asarray([0.0, 1e-3, 0.5, 1.0], dt)[None, None, None, :]
+        for fn in (
+            lambda f, e, v, c: model.threshold_contrast(f, e, v),
+            lambda f, e, v, c: model.log_sensitivity(f, e, v),
+            lambda f, e, v, c: model.threshold_frequency(c, e, v),
+            lambda f, e, v, c: model.imperceptible_distance(c, f, e, v),
+        ):
+            val = jax.jit(fn)(f, e, v, c)
+            assert val.dtype == dt
+            assert np.isfinite(np.asarray(val)).all()
+            grads = jax.jit(jax.grad(lambda *a: fn(*a).sum(), argnums=(0, 1, 2, 3)))(f, e, v, c)
+            for g in grads:
+                assert np.isfinite(np.asarray(g)).all()
+        p = model.is_perceptible(c, f, e, v)
+        assert p.dtype == jnp.bool_ and p.shape == (14, 4, 4, 4)
+        assert not np.asarray(p)[..., 0].any()  # zero contrast is never visible
+
+
+@pytest.mark.parametrize("name", list(FACTORIES))
+def test_jit_vmap_match_eager(name, x64):
+    model = FACTORIES[name]()
+    rng = np.random.default_rng(1)
+    c, f, e, v = rng.uniform(0, 1, 16), rng.uniform(0.1, 50, 16), rng.uniform(0, 40, 16), rng.uniform(0, 50, 16)
+    eager = np.asarray(model.imperceptible_distance(c, f, e, v))
+    jitted = np.asarray(jax.jit(lambda *a: model.imperceptible_distance(*a))(c, f, e, v))
+    vm = np.asarray(jax.vmap(model.imperceptible_distance)(c, f, e, v))
+    np.testing.assert_allclose(jitted, eager, rtol=1e-12)
+    np.testing.assert_allclose(vm, eager, rtol=1e-9)
+    pe = np.asarray(model.is_perceptible(c, f, e, v))
+    np.testing.assert_array_equal(np.asarray(jax.vmap(model.is_perceptible)(c, f, e, v)), pe)
+
+
+@pytest.mark.parametrize("name", list(FACTORIES))
+def test_bad_input_raises_outside_jit_and_propagates_under_jit(name):
+    model = FACTORIES[name]()
+    with pytest.raises(ValueError, match="f must be >= 0"):
+        model.sensitivity(-1.0)
+    with pytest.raises(ValueError, match="f contains NaN"):
+        model.threshold_contrast(np.nan)
+    with pytest.raises(ValueError, match="c must be >= 0"):
+        model.is_perceptible(-0.1, 3.0)
+    with pytest.raises(ValueError, match="do not broadcast"):
+        model.is_perceptible(np.ones(3), np.ones(4))
+    with pytest.raises(ValueError, match="theta"):
+        model.imperceptible_distance(0.5, -1.0)
+    with pytest.raises(ValueError, match="must be a number"):
+        model.sensitivity("3")
+    # documented behaviour under jit: NaN propagates, NaN is never perceptible
+    assert np.isnan(float(jax.jit(lambda x: model.threshold_contrast(x))(jnp.nan)))
+    assert not bool(jax.jit(lambda a, b: model.is_perceptible(a, b))(jnp.nan, 3.0))
+
+
+def test_constructor_rejects_bad_constants():
+    with pytest.raises(ValueError, match="peak_sensitivity must be > 0"):
+        pm.ManosSakrison(-1.0)
+    with pytest.raises(ValueError, match="delta must be finite"):
+        pm.KellyAbstract(delta=np.nan)

@@ -1,0 +1,246 @@
+"""optim.score / node_terms / imperceptible_cut: silhouettes, culling, eccentricity, velocity,
+contrast and keys against hand-computed geometry and slow numpy references."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import optim
+import pmetric
+from optim import View, imperceptible_cut, node_terms, score
+
+EYE = np.array([0.0, 0.0, 4.0])
+
+
+@pytest.fixture(scope="module")
+def sphere_tree():
+    v, f = optim.icosphere(3)
+    return optim.build_tree(v, f, method="octree")
+
+
+@pytest.fixture(scope="module")
+def two_spheres_tree():
+    """One sphere in front of a camera at the origin looking down -z, one behind it."""
+    v, f = optim.icosphere(2, radius=0.5)
+    verts = np.concatenate([v + [0, 0, -5], v + [0, 0, 5]])
+    faces = np.concatenate([f, f + len(v)])
+    return optim.build_tree(verts, faces, method="octree")
+
+
+def _node_vertices(tree, n):
+    return tree.leaf_vertex[tree.leaf_lo[n]:tree.leaf_hi[n]]
+
+
+def _supported_triangles(tree, n):
+    on = np.zeros(tree.n_vertices, bool)
+    on[_node_vertices(tree, n)] = True
+    return np.flatnonzero(on[tree.faces].any(1))
+
+
+def _facing_cos(tree, eye):
+    """cos of the angle between each triangle's normal and the direction from its centroid to the eye."""
+    p = tree.vertices[tree.faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    d = eye - p.mean(1)
+    return (n * d).sum(1) / np.linalg.norm(n, axis=1) / np.linalg.norm(d, axis=1)
+
+
+def test_sphere_rim_nodes_are_silhouette_interior_are_not(sphere_tree):
+    tree = sphere_tree
+    t = node_terms(tree, View(eye=EYE))
+    cos = _facing_cos(tree, EYE)
+    rim, interior, back = [], [], []
+    for n in tree.internal:
+        c = cos[_supported_triangles(tree, n)]
+        if (c > 0).any() and (c < 0).any():
+            rim.append(n)  # supports front- and back-facing triangles: a true silhouette node
+        elif (c > 0.5).all():
+            interior.append(n)  # every normal within 60 deg of the eye direction
+        elif (c < -0.5).all():
+            back.append(n)
+    assert len(rim) > 10 and len(interior) > 10 and len(back) > 10
+    assert t.silhouette[rim].all()  # conservative: every rim node is a silhouette node
+    assert not t.silhouette[interior].any()
+    assert not t.culled[interior].any()
+    assert t.backfacing[back].all() and t.culled[back].all()  # wholly back facing: folded
+    assert not t.backfacing[rim].any()
+
+
+def test_silhouette_contrast_uses_scene_extremes(sphere_tree):
+    tree = sphere_tree
+    view = View(eye=EYE, background=0.0)
+    t = node_terms(tree, view)
+    d = view.display
+    black, peak = float(d.black_level), float(d.peak_luminance)
+    cd = lambda rel: black + (peak - black) * np.clip(rel, 0, 1)  # noqa: E731
+    mich = lambda a, b: abs(a - b) / (a + b)  # noqa: E731
+    lo_scene = min(tree.lum_min.min(), 0.0)
+    hi_scene = tree.lum_max.max()
+    for n in tree.internal[:200]:
+        own = mich(cd(tree.lum_min[n] + tree.fold_delta[n]), cd(tree.lum_min[n]))
+        if t.silhouette[n]:
+            sil = max(mich(cd(tree.lum_max[n]), cd(lo_scene)), mich(cd(hi_scene), cd(tree.lum_min[n])))
+            want = max(own, sil)
+        else:
+            want = own
+        assert t.contrast[n] == pytest.approx(want, rel=1e-4, abs=1e-6)
+    # a black background against a lit model: silhouette folds reach nearly full contrast
+    assert t.contrast[t.silhouette].max() > 0.95
+
+
+def _reference_theta_ecc(tree, view, nodes, gaze):
+    xy, depth = view.project(tree.center[nodes])
+    dist = np.linalg.norm(tree.center[nodes] - view.eye, axis=1)
+    s = tree.radius[nodes] / dist
+    size = 2 * view.focal_px * s / np.sqrt(1 - s * s)
+    theta = size * view.degrees_per_pixel
+    ang = np.min([view.visual_angle_px(xy, np.broadcast_to(g, xy.shape)) for g in gaze], axis=0)
+    return theta, np.maximum(ang - theta / 2 - view.gaze_error_deg, 0.0)
+
+
+def test_eccentricity_matches_reference_and_clamps_at_zero(sphere_tree):
+    tree = sphere_tree
+    gaze = np.array([[700.0, 400.0]])
+    view = View(eye=EYE, gaze=gaze, gaze_error_deg=1.0)
+    t = node_terms(tree, view)
+    nodes = tree.internal[~t.culled[tree.internal]]
+    theta, ecc = _reference_theta_ecc(tree, view, nodes, gaze)
+    assert t.theta[nodes] == pytest.approx(theta, rel=1e-4)
+    assert t.eccentricity[nodes] == pytest.approx(ecc, rel=1e-3, abs=2e-3)
+    assert (t.eccentricity[nodes] == 0).any() and (t.eccentricity[nodes] > 1).any()
+    assert (t.eccentricity >= 0).all()
+    # several viewers: the minimum eccentricity (seed 004 section 8.4)
+    g2 = np.array([[1200.0, 700.0]])
+    both = node_terms(tree, View(eye=EYE, gaze=np.concatenate([gaze, g2]))).eccentricity
+    other = node_terms(tree, View(eye=EYE, gaze=g2)).eccentricity
+    assert both[nodes] == pytest.approx(np.minimum(t.eccentricity, other)[nodes], abs=1e-5)
+    # no gaze: every node foveal
+    assert (node_terms(tree, View(eye=EYE, gaze=None)).eccentricity == 0).all()
+
+
+def test_huge_gaze_error_clamps_everything(sphere_tree):
+    t = node_terms(sphere_tree, View(eye=EYE, gaze=[[0.0, 0.0]], gaze_error_deg=60.0))
+    assert (t.eccentricity == 0).all()
+
+
+def test_velocity_from_previous_view(sphere_tree):
+    tree = sphere_tree
+    a = View(eye=EYE)
+    b = View(eye=(0.3, 0.0, 4.0), target=(0, 0, 0), previous=a, dt_s=0.05)
+    t = node_terms(tree, b)
+    nodes = tree.internal[~t.culled[tree.internal]][:50]
+    xa, _ = a.project(tree.center[nodes])
+    xb, _ = b.project(tree.center[nodes])
+    want = b.visual_angle_px(xb, xa) / 0.05
+    assert t.velocity[nodes] == pytest.approx(want, rel=1e-3, abs=1e-2)
+    assert (node_terms(tree, a).velocity == 0).all()
+
+
+def test_nodes_behind_the_camera_are_culled(two_spheres_tree):
+    tree = two_spheres_tree
+    view = View(eye=(0, 0, 0), target=(0, 0, -1))
+    t = node_terms(tree, view)
+    z = np.array([tree.vertices[_node_vertices(tree, n), 2].min() for n in tree.internal])
+    behind = tree.internal[z > 0]
+    front = tree.internal[np.array([tree.vertices[_node_vertices(tree, n), 2].max() < 0 for n in tree.internal])]
+    assert len(behind) > 5 and len(front) > 5
+    assert t.culled[behind].all()
+    for metric in ("perceptual", "size", "geometric"):
+        k = score(tree, view, metric=metric)
+        assert (k[behind] == 0).all()
+        assert (k[front] > 0).any()
+    # a sphere outside the side planes of the frustum is culled too
+    side = View(eye=(0, 0, 0), target=(1, 0, -0.2), fov_deg=20.0)
+    ts = node_terms(tree, side)
+    assert ts.culled[front].all()
+
+
+def test_size_key_closed_form(sphere_tree):
+    tree = sphere_tree
+    view = View(eye=EYE)
+    k = score(tree, view, metric="size")
+    d = np.linalg.norm(tree.center[0] - EYE)
+    s = tree.radius[0] / d
+    assert k[0] == pytest.approx(2 * view.focal_px * s / math.sqrt(1 - s * s), rel=1e-5)
+    g = score(tree, view, metric="geometric")
+    assert g[0] >= view.focal_px * tree.geom_error[0] / d * (1 - 1e-5)
+    assert (k[tree.child_count == 0] == 0).all()  # leaves have nothing to fold
+
+
+def _check_monotone(tree, k):
+    assert k.shape == (tree.n_nodes,) and k.dtype == np.float32
+    assert np.isfinite(k).all() and (k >= 0).all()
+    assert (k[tree.parent[1:]] >= k[1:]).all()
+
+
+@settings(max_examples=6, deadline=None)
+@given(az=st.floats(0, 2 * math.pi), el=st.floats(-1.2, 1.2), dist=st.floats(1.5, 20.0),
+       metric=st.sampled_from(["perceptual", "size", "geometric"]))
+def test_keys_are_monotone(sphere_tree, az, el, dist, metric):
+    eye = dist * np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+    _check_monotone(sphere_tree, score(sphere_tree, View(eye=eye), metric=metric))
+
+
+def test_perceptual_keys_match_the_model(sphere_tree):
+    tree = sphere_tree
+    model = pmetric.KellyAbstract()
+    view = View(eye=EYE, gaze=[[800.0, 500.0]])
+    exact = score(tree, view, model, exact=True)
+    table = score(tree, view, model)
+    _check_monotone(tree, exact)
+    _check_monotone(tree, table)
+    # the table is conservative and close: never below the exact key, at most a few percent above
+    assert (table >= exact * (1 - 1e-5) - 1e-6).all()
+    big = exact > 0.1
+    assert (table[big] <= exact[big] * 1.06 + 0.05).all()
+    # deepest internal nodes (all children are leaves): key = the model's distance for its own terms
+    t = node_terms(tree, view)
+    deep = np.array([n for n in tree.internal
+                     if (tree.child_count[tree.child_start[n]:tree.child_start[n] + tree.child_count[n]] == 0).all()])
+    deep = deep[~t.culled[deep]]
+    want = np.asarray(model.imperceptible_distance(t.contrast[deep], t.theta[deep], t.eccentricity[deep]))
+    assert exact[deep] == pytest.approx(want, rel=1e-4, abs=1e-6)
+    # farther away, every fold is at most as important (smaller angles, larger frequencies)
+    far = score(tree, View(eye=EYE * 3, gaze=[[800.0, 500.0]]), model, exact=True)
+    assert far[0] < exact[0]
+
+
+def test_imperceptible_cut(sphere_tree):
+    tree = sphere_tree
+    model = pmetric.KellyAbstract()
+    near = imperceptible_cut(tree, View(eye=EYE), model)
+    # gaze at a corner: peripheral folds vanish sooner; head tracking (15 deg error) keeps more of them
+    tracked = imperceptible_cut(tree, View(eye=EYE, gaze=[[0.0, 0.0]], gaze_error_deg=1.0), model)
+    head = imperceptible_cut(tree, View(eye=EYE, gaze=[[0.0, 0.0]], gaze_error_deg=15.0), model)
+    assert near.stop_reason in ("imperceptible", "all_unfolded")
+    k = score(tree, View(eye=EYE), model)
+    unf = near.unfolded
+    assert (k[unf] > 1).all()
+    pu = np.r_[True, unf[tree.parent[1:]]]
+    boundary = pu & ~unf & (tree.child_count > 0)
+    assert (k[boundary] <= 1).all()
+    assert near.distance <= 1.0
+    assert tracked.triangles <= head.triangles <= near.triangles
+    # eccentricity only ever lowers a key (seed 001 section 4.4), and does for peripheral nodes
+    foveal = score(tree, View(eye=EYE, gaze=None), model, exact=True)
+    corner = score(tree, View(eye=EYE, gaze=[[0.0, 0.0]]), model, exact=True)
+    assert (corner <= foveal * (1 + 1e-5) + 1e-6).all()
+    assert (corner < 0.95 * foveal).any()
+    assert near.triangles == int(tree.num_subtris[unf].sum())
+
+
+def test_bad_input(sphere_tree):
+    view = View(eye=EYE)
+    with pytest.raises(ValueError, match="metric must be one of"):
+        score(sphere_tree, view, metric="loudness")
+    with pytest.raises(ValueError, match="optim.View"):
+        score(sphere_tree, (0, 0, 4))
+    with pytest.raises(ValueError, match="pmetric.CSFModel"):
+        score(sphere_tree, view, model="KellyAbstract")
+    with pytest.raises(ValueError, match="lacks the field"):
+        score(object(), view)
