@@ -37,7 +37,7 @@ DEFAULTS = {
     "models": ["stelacsf", "barten", "kellyabstract", "manossakrison", "kellyspatiotemporal", "eccentric"],
     "solver": "lm",
     "backend": "optimistix",
-    "max_steps": 400,
+    "max_steps": 1000,
     "seed": 0,
     "observers": True,
     # fields refitted per ModelFest observer (14 stimuli at one luminance): the big models keep their
@@ -47,7 +47,7 @@ DEFAULTS = {
         "barten": ["sigma_0", "k", "eta", "n_max", "x_max", "u_0"],
     },
     # MCMC: a model and data set ("modelfest": all observers pooled, or "achromatic")
-    "mcmc": {"model": "kellyabstract", "data": "modelfest", "nwalkers": 32, "nsteps": 2000, "q": 0.95},
+    "mcmc": {"model": "kellyabstract", "data": "modelfest", "nwalkers": 32, "nsteps": 3000, "q": 0.95},
 }
 
 PUBLISHED = "castleCSF 3.48 dB, Barten refit 3.87 dB, stelaCSF 4.37 dB (achromatic test set, with multipliers)"
@@ -62,8 +62,19 @@ def _fmt(x, nd=2):
     return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{nd}f}"
 
 
+def _numeric(x) -> bool:
+    try:
+        float(str(x).split(" ")[0])
+        return True
+    except ValueError:
+        return str(x) == "–"
+
+
 def _table(header, rows):
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join(" --- " if i == 0 else " ---: " for i in range(len(header))) + "|"]
+    def align(i):
+        return " --- " if i == 0 or not all(_numeric(r[i]) for r in rows) else " ---: "
+
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join(align(i) for i in range(len(header))) + "|"]
     out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(out)
 
@@ -330,8 +341,9 @@ def main(argv=None) -> int:
     pmetric.save_model(cons, out / f"conservative_{type(cons).__name__.lower()}_q{mc['q']:g}.json")
 
     # ------------------------------------------------------------------ report
+    cmd = " ".join([".venv/bin/python experiments/fit_real.py", *(argv if argv is not None else sys.argv[1:])])
     lines = ["# Refitting the CSF models to published thresholds", "",
-             "Command: `.venv/bin/python experiments/fit_real.py --config configs/fit_real.toml` "
+             f"Command: `{cmd}` "
              f"({time.perf_counter() - t_start:.0f} s on this machine). Least squares in log10 sensitivity, "
              f"{cfg['solver']} / {cfg['backend']}; RMSE in dB of sensitivity (20 log10). "
              "Multipliers: one free sensitivity factor per dataset, geometric mean 1.", "",
@@ -340,7 +352,8 @@ def main(argv=None) -> int:
     rows = []
     for label, r in ach.items():
         a, b = r[False], r[True]
-        rows.append([label, b.n_rows, len(b.param_names) - len(b.multipliers), _fmt(a.rmse_db), _fmt(b.rmse_db),
+        n_const = len([n for n in b.param_names if not n.startswith("log10_multiplier")])
+        rows.append([label, b.n_rows, n_const, _fmt(a.rmse_db), _fmt(b.rmse_db),
                      f"{a.result} / {b.result}", "; ".join(b.row_rules[1:]) or "all gratings/Gabors"])
     lines.append(_table(["model", "rows", "constants", "RMSE dB", "RMSE dB (+mult)", "solver result",
                          "rows it can express (besides f > 0)"], rows))

@@ -10,7 +10,7 @@ footnote 2). Units of the keys:
 * ``"geometric"``: projected object-space fold error (``tree.geom_error``, largest distance from a
   supported vertex to the proxy), pixels, at the nearest point of the node's bounding sphere.
 
-Stages (one jitted XLA function over all nodes, flat arrays, per view):
+Stages 1-6 are one jitted XLA function over all internal nodes (flat arrays), per view:
 
 1. ``_cull``: sphere-frustum test and wholly-back-facing test (normal masks); culled nodes and their
    whole subtrees are folded (key 0).
@@ -27,8 +27,8 @@ Stages (one jitted XLA function over all nodes, flat arrays, per view):
    section 4.3) the node's luminance range against the scene's brightest and darkest values,
    background included (seed 001 section 4.2, seed 004 section 5.2).
 6. ``_key``: ``model.imperceptible_distance(c, theta, e, v)``, or the pixel keys.
-7. ``_monotone``: each key becomes the maximum over its subtree (range-maximum query over the
-   depth-first preorder, where every subtree is a contiguous range).
+7. ``monotone``: maximum propagated from the deepest level up, and culling propagated down (two
+   O(N) numpy passes over the breadth-first levels, ``np.maximum.reduceat`` per level).
 
 Per-tree device arrays (level order, packed normal masks) are built once: :func:`scoring_context`
 caches them on the tree.
@@ -167,14 +167,13 @@ def silhouette_table() -> np.ndarray:
 class ScoringContext(eqx.Module):
     """Per-tree device arrays, built once by :func:`scoring_context` (cached on the tree).
 
-    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in depth-first
-    preorder, so that the subtree of the node at position i is positions ``i : i + size[i]``. Flat
-    float32 columns (M,): ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units),
-    ``lum_min``, ``lum_max``, ``fold_delta`` (relative luminance), ``geom_error`` (object units);
-    ``mask`` (M, 12) uint32 packed normal masks, ``nonempty`` (M,) bool; ``end`` (M,) int32 ``i + size[i]``; ``rmq`` per
-    sparse-table level j >= 1 the positions whose subtree length has floor(log2) = j and the start of
-    the second window; ``pos`` (N,) int32 preorder position of every tree node (M for leaves).
-    Static: ``n_nodes`` (N), ``scene_lum`` (darkest, brightest relative luminance of the model).
+    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first
+    order with children grouped by parent. Flat float32 columns (M,): ``cx, cy, cz`` bounding-sphere
+    centre and ``radius`` (object units), ``lum_min``, ``lum_max``, ``fold_delta`` (relative
+    luminance), ``geom_error`` (object units); normal masks (48 bytes = 12 uint32 words) as ``word_idx``,
+    ``word_val`` (M, 2): the (up to) two nonzero words of each mask, ``wide`` (W,) the positions of
+    masks with more nonzero words and ``wide_mask`` (W, 12) their full masks; ``nonempty`` (M,) bool. ``passes`` (static) holds the numpy index arrays of the two tree passes
+    (culling down, maximum up); ``scene_lum`` the darkest and brightest relative luminance of the model.
     """
 
     cx: jax.Array
@@ -185,14 +184,57 @@ class ScoringContext(eqx.Module):
     lum_max: jax.Array
     fold_delta: jax.Array
     geom_error: jax.Array
-    mask: jax.Array
+    word_idx: jax.Array
+    word_val: jax.Array
+    wide: jax.Array
+    wide_mask: jax.Array
     nonempty: jax.Array
-    end: jax.Array
-    rmq: tuple
-    rmq_src: jax.Array
-    pos: jax.Array
-    n_nodes: int = eqx.field(static=True)
+    passes: "_TreePasses" = eqx.field(static=True)
     scene_lum: tuple = eqx.field(static=True)
+
+
+class _TreePasses:
+    """numpy index arrays for the hierarchical passes over the M internal nodes (breadth-first order).
+
+    ``parent`` (M,) position of the parent (-1 for the root); ``levels`` start of each depth level;
+    ``groups[k]`` for level k >= 1: (positions of the level-(k-1) parents that have internal children,
+    start offsets of their child groups within the level); ``node`` (M,) tree index; ``n_nodes`` N.
+    Hashed by identity (it is a static field of the jitted context)."""
+
+    def __init__(self, parent, levels, node, n_nodes):
+        self.parent, self.levels, self.node, self.n_nodes = parent, levels, node, n_nodes
+        self.groups = [None]
+        for k in range(1, len(levels) - 1):
+            a, b = levels[k], levels[k + 1]
+            p = parent[a:b]
+            start = np.flatnonzero(np.r_[True, p[1:] != p[:-1]]) if b > a else np.zeros(0, np.int64)
+            self.groups.append((p[start], start))
+        self.sorted_nodes = bool(np.all(np.diff(node) > 0))
+
+    def propagate_culled(self, culled: np.ndarray) -> np.ndarray:
+        """A culled node culls its whole subtree (top down, one gather per level)."""
+        c = np.array(culled, dtype=bool)
+        lv, par = self.levels, self.parent
+        for k in range(1, len(lv) - 1):
+            a, b = lv[k], lv[k + 1]
+            c[a:b] |= c[par[a:b]]
+        return c
+
+    def monotone(self, key: np.ndarray) -> np.ndarray:
+        """key[parent] = max(key[parent], max key[children]), deepest level first (seed 004 footnote 2)."""
+        lv = self.levels
+        for k in range(len(lv) - 2, 0, -1):
+            pids, starts = self.groups[k]
+            if len(pids):
+                sub = key[lv[k]:lv[k + 1]]
+                key[pids] = np.maximum(key[pids], np.maximum.reduceat(sub, starts))
+        return key
+
+    def to_tree(self, vals: np.ndarray, fill=0) -> np.ndarray:
+        """Internal-node values (M,) -> tree order (N,), ``fill`` at the leaves."""
+        out = np.full(self.n_nodes, fill, dtype=vals.dtype)
+        out[self.node] = vals
+        return out
 
 
 _FIELDS = ("parent", "child_start", "child_count", "center", "radius", "lum_min", "lum_max",
@@ -243,26 +285,16 @@ def _level_order(parent, child_start, child_count):
     return order, np.concatenate(depth)
 
 
-def _preorder(par: np.ndarray, depth: np.ndarray):
-    """Depth-first preorder of a tree given in breadth-first order (children grouped by parent):
-    (pre (M,) preorder position of each node, size (M,) subtree sizes)."""
-    m = len(par)
-    levels = np.searchsorted(depth, np.arange(int(depth.max()) + 2))
-    size = np.ones(m, np.int64)
-    for k in range(len(levels) - 2, 0, -1):
-        a, b = levels[k], levels[k + 1]
-        np.add.at(size, par[a:b], size[a:b])
-    pre = np.zeros(m, np.int64)
-    for k in range(1, len(levels) - 1):
-        a, b = levels[k], levels[k + 1]
-        if b == a:
-            continue
-        p, sz = par[a:b], size[a:b]
-        excl = np.cumsum(sz) - sz
-        start = np.r_[True, p[1:] != p[:-1]]
-        base = np.maximum.accumulate(np.where(start, excl, 0))
-        pre[a:b] = pre[p] + 1 + excl - base
-    return pre, size
+def _compact_masks(mask: np.ndarray) -> dict:
+    """Normal masks (M, 12) uint32 -> up to 2 nonzero (word index, word) pairs per node, plus the
+    positions (and full masks) of the nodes that use more than 2 words."""
+    nz = mask != 0
+    wide = np.flatnonzero(nz.sum(1) > 2)
+    order = np.argsort(~nz, axis=1, kind="stable")[:, :2]  # first two nonzero words (or zero words)
+    val = np.take_along_axis(mask, order, 1)
+    val[wide] = 0
+    return dict(word_idx=jnp.asarray(order.astype(np.int32)), word_val=jnp.asarray(val),
+                wide=jnp.asarray(wide.astype(np.int32)), wide_mask=jnp.asarray(mask[wide]))
 
 
 def scoring_context(tree) -> ScoringContext:
@@ -282,27 +314,13 @@ def scoring_context(tree) -> ScoringContext:
     node = order[keep] if keep.any() else np.zeros(1, np.int64)  # a lone vertex: nothing to fold
     depth_int = depth[keep] if keep.any() else np.zeros(1, np.int64)
     m = len(node)
-    bfs_pos = np.full(n, -1, np.int64)
-    bfs_pos[node] = np.arange(m)
-    par = np.where(parent[node] >= 0, bfs_pos[np.maximum(parent[node], 0)], -1)
+    pos = np.full(n, -1, np.int64)
+    pos[node] = np.arange(m)
+    par = np.where(parent[node] >= 0, pos[np.maximum(parent[node], 0)], -1)
     if (par[1:] < 0).any():
         raise ValueError("score: an internal node's parent is not an internal node")
-    pre, size = _preorder(par, depth_int)
-    inv = np.empty(m, np.int64)
-    inv[pre] = np.arange(m)
-    node, size = node[inv], size[inv]  # preorder from here on
-    pos = np.full(n, m, np.int64)
-    pos[node] = np.arange(m)
-    end = np.arange(m) + size
-    j = np.floor(np.log2(size)).astype(np.int64)
-    rmq = []
-    src = np.arange(m)  # where _monotone finds each node's answer: its own key or a level's result
-    off = m
-    for lvl in range(1, int(j.max()) + 1):
-        idx = np.flatnonzero(j == lvl)
-        src[idx] = off + np.arange(len(idx))
-        off += len(idx)
-        rmq.append((jnp.asarray(idx.astype(np.int32)), jnp.asarray((end[idx] - (1 << lvl)).astype(np.int32))))
+    levels = tuple(int(x) for x in np.searchsorted(depth_int, np.arange(int(depth_int.max()) + 2)))
+    passes = _TreePasses(par, levels, node, n)
     f32 = lambda a: jnp.asarray(np.asarray(a, np.float32)[node])  # noqa: E731
     center = np.asarray(tree.center, np.float32)[node]
     mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
@@ -310,9 +328,8 @@ def scoring_context(tree) -> ScoringContext:
     ctx = ScoringContext(
         cx=jnp.asarray(center[:, 0]), cy=jnp.asarray(center[:, 1]), cz=jnp.asarray(center[:, 2]),
         radius=f32(tree.radius), lum_min=f32(lum_min), lum_max=f32(lum_max), fold_delta=f32(tree.fold_delta),
-        geom_error=f32(tree.geom_error), mask=jnp.asarray(mask), nonempty=jnp.asarray((mask != 0).any(1)), end=jnp.asarray(end.astype(np.int32)),
-        rmq=tuple(rmq), rmq_src=jnp.asarray(src.astype(np.int32)), pos=jnp.asarray(pos.astype(np.int32)), n_nodes=n,
-        scene_lum=(float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))),
+        geom_error=f32(tree.geom_error), **_compact_masks(mask), nonempty=jnp.asarray((mask != 0).any(1)),
+        passes=passes, scene_lum=(float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))),
     )
     try:
         object.__setattr__(tree, "_plod_scoring_context", ctx)
@@ -445,9 +462,22 @@ def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_moti
     level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
     level = jnp.where(inside, len(_MARGINS_DEG) - 1, level)
     row = jax.lax.optimization_barrier(level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz))
-    tab = jnp.take(table, row, axis=0, mode="clip").reshape(-1, 2, 12)  # 'clip': no slow checked gather
-    hit = jnp.any((tab & ctx.mask[:, None, :]) != 0, axis=2)  # (M, 2): some normal may face front / back
-    front, back = hit[:, 0], hit[:, 1]
+    # most nodes' masks use at most 2 of the 12 words: test those words with scalar gathers; the few
+    # wider masks gather whole table rows ('clip' mode: no slow checked gather)
+    flat = table.reshape(-1)
+    base = row * 24
+    front = back = None
+    for k in range(2):
+        w, val = ctx.word_idx[:, k], ctx.word_val[:, k]
+        f_k = (jnp.take(flat, base + w, mode="clip") & val) != 0
+        b_k = (jnp.take(flat, base + 12 + w, mode="clip") & val) != 0
+        front = f_k if front is None else front | f_k
+        back = b_k if back is None else back | b_k
+    if ctx.wide.shape[0]:
+        tab = jnp.take(table, jnp.take(row, ctx.wide, mode="clip"), axis=0, mode="clip").reshape(-1, 2, 12)
+        hit = jnp.any((tab & ctx.wide_mask[:, None, :]) != 0, axis=2)
+        front = front.at[ctx.wide].set(hit[:, 0], indices_are_sorted=True, unique_indices=True)
+        back = back.at[ctx.wide].set(hit[:, 1], indices_are_sorted=True, unique_indices=True)
     backfacing = ctx.nonempty & ~front
     silhouette = front & back
     culled = (outside & ~inside) | backfacing
@@ -505,32 +535,6 @@ def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_moti
     else:
         err_px = zero
     return _Terms(culled, backfacing, silhouette, size_px, theta, ecc, vel, contrast, err_px)
-
-
-def _propagate_culled(ctx: ScoringContext, culled):
-    """A culled node culls its whole subtree: position i is covered when some culled node's preorder
-    range ``[j, end[j])`` contains it (difference array + prefix sum)."""
-    c = culled.astype(jnp.int32)
-    m = c.shape[0]
-    ends = jnp.zeros(m + 1, jnp.int32).at[ctx.end].add(c, mode="promise_in_bounds")
-    return jnp.cumsum(c - ends[:m]) > 0
-
-
-def _monotone(ctx: ScoringContext, key):
-    """key[i] = max of key over the subtree of i (seed 004 footnote 2): a range-maximum query over the
-    preorder range ``[i, end[i])`` by a sparse table (two overlapping power-of-two windows). Window
-    arrays shrink level by level; one final gather puts every node's answer in place."""
-    parts = [key]
-    win = key  # win[i] = max(key[i : i + 2^lvl]), valid for i <= M - 2^lvl
-    for lvl, (idx, second) in enumerate(ctx.rmq, start=1):
-        h = 1 << (lvl - 1)
-        win = jnp.maximum(win[:-h], win[h:])
-        a = jnp.take(win, idx, mode="clip", indices_are_sorted=True)
-        b = jnp.take(win, second, mode="clip")
-        parts.append(jnp.maximum(a, b))
-    if len(parts) == 1:
-        return key
-    return jnp.take(jnp.concatenate(parts), ctx.rmq_src, mode="clip")
 
 
 # ------------------------------------------------------------------ perceptual key through a contrast table
@@ -591,38 +595,40 @@ def _table_key(ktab, c, theta, ecc):
     return jnp.where(pos_c & pos_t, theta * jnp.take(ktab, idx, mode="clip"), 0.0)
 
 
-def _scatter_nodes(ctx, vals, fill):
-    """Preorder values (M,) -> tree order (N,), ``fill`` at the leaves."""
-    padded = jnp.concatenate([vals, jnp.full((1,), fill, vals.dtype)])
-    return jnp.take(padded, ctx.pos, mode="clip")
+@eqx.filter_jit
+def _key_terms(ctx, vp, table, metric, has_gaze, has_motion):
+    """Stages 1-5: (cull flag, the metric's input terms) of every internal node."""
+    t = _terms(ctx, vp, table, has_gaze, has_motion, metric)
+    if metric == "perceptual":
+        return t.culled, (t.contrast, t.theta, t.ecc, t.vel)
+    return t.culled, (t.size_px if metric == "size" else t.err_px,)
 
 
 @eqx.filter_jit
-def _score_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
-    t = _terms(ctx, vp, table, has_gaze, has_motion, metric)
+def _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion):
+    """Stage 6: raw key (M,) float32 >= 0. A separate XLA program: fused with stages 1-5, XLA:CPU
+    recomputes shared intermediates and runs ~1.5x slower."""
     if metric == "perceptual":
+        contrast, theta, ecc, vel = terms
         if ktab is not None and not has_motion:
-            key = _table_key(ktab, t.contrast, t.theta, t.ecc)
+            key = _table_key(ktab, contrast, theta, ecc)
         else:
-            e = t.ecc if has_gaze else 0.0
-            v = t.vel if has_motion else 0.0
-            key = model.imperceptible_distance(t.contrast, t.theta, e, v)
-        key = jnp.where(jnp.isnan(key), 1e30, jnp.minimum(key, 1e30)).astype(jnp.float32)
-    elif metric == "size":
-        key = t.size_px
+            key = model.imperceptible_distance(contrast, theta, ecc if has_gaze else 0.0, vel if has_motion else 0.0)
+        key = jnp.where(jnp.isnan(key), 1e30, jnp.minimum(key, 1e30))
     else:
-        key = t.err_px
-    culled = _propagate_culled(ctx, t.culled)
-    key = jnp.where(culled, 0.0, jnp.maximum(key, 0.0))
-    key = _monotone(ctx, key)
-    return _scatter_nodes(ctx, key, 0.0)
+        key = terms[0]
+    return jnp.maximum(key, 0.0).astype(jnp.float32)
+
+
+def _key_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
+    """Raw key (M,) float32 and cull flag (M,) of every internal node (stages 1-6)."""
+    culled, terms = _key_terms(ctx, vp, table, metric, has_gaze, has_motion)
+    return _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion), culled
 
 
 @eqx.filter_jit
 def _terms_kernel(ctx, vp, table, has_gaze, has_motion):
-    t = _terms(ctx, vp, table, has_gaze, has_motion, "perceptual")
-    t = t._replace(culled=_propagate_culled(ctx, t.culled))
-    return jax.tree_util.tree_map(lambda a: _scatter_nodes(ctx, a, False if a.dtype == bool else 0.0), t)
+    return _terms(ctx, vp, table, has_gaze, has_motion, "perceptual")
 
 
 # =============================================================================== public API
@@ -661,8 +667,10 @@ def node_terms(tree, view) -> NodeTerms:
     ctx = scoring_context(tree)
     vp = _view_params(view, ctx)
     t = _terms_kernel(ctx, vp, _table_device(), view.gaze_px is not None, view.previous is not None)
-    return NodeTerms(*(np.asarray(a) for a in (t.culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc,
-                                                t.vel, t.contrast)))
+    tp = ctx.passes
+    culled = tp.propagate_culled(np.asarray(t.culled))
+    return NodeTerms(*(tp.to_tree(np.asarray(a), False if np.asarray(a).dtype == bool else 0.0)
+                       for a in (culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc, t.vel, t.contrast)))
 
 
 def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = False) -> np.ndarray:
@@ -692,9 +700,14 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
             ktab = _model_table(model)
     else:
         model = None
-    key = _score_kernel(ctx, vp, _table_device(), model, ktab, metric, view.gaze_px is not None,
-                        view.previous is not None)
-    return np.asarray(key)
+    raw, culled = _key_kernel(ctx, vp, _table_device(), model, ktab, metric, view.gaze_px is not None,
+                              view.previous is not None)
+    # stage 7 and the subtree culling: two O(M) passes over the levels in numpy (XLA:CPU runs these
+    # level-by-level scatters and prefix scans several times slower than numpy's reduceat)
+    tp = ctx.passes
+    key = np.array(raw)
+    key[tp.propagate_culled(np.asarray(culled))] = 0.0
+    return tp.to_tree(tp.monotone(key), 0.0)
 
 
 @functools.lru_cache(maxsize=1)

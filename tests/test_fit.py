@@ -216,3 +216,23 @@ def test_cli_rejects_unknown_model_and_input_overwrite(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert _cli(["fit", str(csv), "--model", "kellyabstract", "--out", str(csv)]) == 2
     assert "overwrite" in capsys.readouterr().err
+
+
+def test_nested_model_uses_inner_bounds_and_recovers_constants():
+    """Eccentric(ManosSakrison, RovamoVirsu('linear')): fields csf.peak_sensitivity, magnification.k1/k3."""
+    pm = pytest.importorskip("pmetric")
+    true = pm.Eccentric(pm.ManosSakrison(300.0), pm.RovamoVirsu("linear", k1=0.4, k3=0.0))
+    rng = np.random.default_rng(7)
+    f = 10 ** rng.uniform(-0.3, 1.3, 400)
+    e = rng.uniform(0, 15, 400)
+    with jax.enable_x64(True):
+        ls = np.log10(np.asarray(true.stimulus_sensitivity(f, e), np.float64)) + 0.01 * rng.standard_normal(400)
+    data = CalibrationData.from_arrays(f, log_threshold=-ls, e=e, luminance=50.0, area=2.0)
+    start = pm.Eccentric(pm.ManosSakrison(150.0), pm.RovamoVirsu("linear", k1=0.2, k3=0.0))
+    res = optim.fit_least_squares(start, data, fit=["csf", "magnification.k1"])
+    assert res.param_names == ["csf.peak_sensitivity", "magnification.k1"]
+    assert float(res.model.csf.peak_sensitivity) == pytest.approx(300.0, rel=0.02)
+    assert float(res.model.magnification.k1) == pytest.approx(0.4, rel=0.02)
+    # k1 has bounds (0, inf) from RovamoVirsu.param_bounds: a negative start is refused
+    with pytest.raises(ValueError, match="magnification.k1"):
+        optim.fit_least_squares(pm.Eccentric(pm.ManosSakrison(), pm.RovamoVirsu("linear", k1=-0.1)), data)
