@@ -50,7 +50,6 @@ def register(subparsers) -> None:
 def resolve_model(name: str):
     """A model instance from a class name (case-insensitive) or a saved ``.json`` model file."""
     import pmetric
-    from experiments.cli import PlodError
 
     if name.lower().endswith(".json"):
         return pmetric.load_model(name)
@@ -58,14 +57,14 @@ def resolve_model(name: str):
            if isinstance(cls, type) and issubclass(cls, pmetric.CSFModel)}
     key = name.lower().replace("-", "").replace("_", "")
     if key not in reg:
-        raise PlodError(f"unknown model {name!r}; choose one of {sorted(reg)} or a saved model .json")
+        raise ValueError(f"unknown model {name!r}; choose one of {sorted(reg)} or a saved model .json")
     cls = reg[key]
     if cls.__name__ == "Eccentric":
         return cls(pmetric.ManosSakrison())  # the foveal CSF of seed 000, scaled by Rovamo-Virsu M(e)
     try:
         return cls()
     except TypeError as exc:
-        raise PlodError(f"model {cls.__name__} cannot be built with default constants ({exc}); "
+        raise ValueError(f"model {cls.__name__} cannot be built with default constants ({exc}); "
                         "start from a saved model .json") from None
 
 
@@ -74,19 +73,18 @@ def run(args) -> int:
 
     import optim
     import pmetric
-    from experiments.cli import PlodError
 
     if args.conservative is not None and not 0 < args.conservative < 1:
-        raise PlodError(f"--conservative must be in (0, 1), got {args.conservative}")
+        raise ValueError(f"--conservative must be in (0, 1), got {args.conservative}")
     if args.conservative is not None and args.method != "mcmc":
-        raise PlodError("--conservative needs --method mcmc")
+        raise ValueError("--conservative needs --method mcmc")
     data_path = Path(args.data)
     if args.out is not None:
         out = Path(args.out)
         if data_path.exists() and out.exists() and os.path.samefile(out, data_path):
-            raise PlodError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
+            raise ValueError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
         if out.is_dir():
-            raise PlodError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
+            raise ValueError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
     data = pmetric.CalibrationData.from_csv(data_path)
     model = resolve_model(args.model)
     fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None

@@ -212,7 +212,8 @@ def simplify(args) -> dict:
     out = Path(args.out) if args.out else None
     if out is not None:
         if out.suffix.lower() not in (".ply", ".obj", ".off", ".stl", ".glb"):
-            raise _error(f"--out: cannot write {out.suffix or 'a file without suffix'!r}; use .ply, .obj, .off, .stl or .glb")
+            what = out.suffix or "a file without suffix"
+            raise _error(f"--out: cannot write {what!r}; use .ply, .obj, .off, .stl or .glb")
         if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
             raise _error(f"--out {str(out)!r} is the input mesh; choose another output path")
     model = load_model_arg(args.model) if args.metric == "perceptual" else None

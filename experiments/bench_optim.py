@@ -61,7 +61,7 @@ def _meshopt_simplify(vertices, faces, target_triangles: int):
     return n // 3
 
 
-def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metric, progress, con):
+def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metric, progress, con, repeat=3):
     import optim
 
     rec = {"mesh": name, "triangles": int(faces.shape[0]), "metric": metric}
@@ -75,10 +75,14 @@ def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metri
     rows = []
     task = progress.add_task(f"{name}: views", total=len(views))
     for view in views:
-        keys, ts, cs = _timed(lambda: optim.score(tree, view, metric=metric))
-        cut, tc, cc = _timed(lambda: optim.budget_cut(tree, keys, budget, monotone="trust"))
-        mesh, te, ce = _timed(lambda: optim.extract(tree, cut))
-        rows.append((ts, tc, te, cs, cc, ce, mesh[1].shape[0], cut.distance))
+        best = None
+        for _ in range(repeat):  # best of `repeat` per view (the machine is shared), median over views
+            keys, ts, cs = _timed(lambda: optim.score(tree, view, metric=metric))
+            cut, tc, cc = _timed(lambda: optim.budget_cut(tree, keys, budget, monotone="trust"))
+            mesh, te, ce = _timed(lambda: optim.extract(tree, cut))
+            row = (ts, tc, te, cs, cc, ce, mesh[1].shape[0], cut.distance)
+            best = row if best is None or sum(row[:3]) < sum(best[:3]) else best
+        rows.append(best)
         progress.advance(task)
     med = lambda k: statistics.median(r[k] for r in rows) * 1e3  # noqa: E731
     rec.update(score_ms=med(0), cut_ms=med(1), extract_ms=med(2), score_cpu_ms=med(3), cut_cpu_ms=med(4),
@@ -110,10 +114,10 @@ def report(recs, args) -> str:
         f"numpy {np.__version__}. {args.views} views around each object (framed at 30 deg of a 46 deg screen, "
         "gaze at the screen centre, 1 deg gaze error), perceptual keys with the default model "
         f"(`optim._score.default_model`), budget {args.budget_fraction:.0%} of the input triangles, "
-        f"tree method `{args.method}`. Medians over the views; the first view (tree context, model table, "
-        "XLA compilation) is listed separately. meshoptimizer: `meshoptimizer.simplify` of the full mesh to "
-        "the same triangle count, best of 2. Wall time and process CPU time (CPU time is the robust "
-        "figure on a shared machine).",
+        f"tree method `{args.method}`. Best of {args.repeat} runs per view, medians over the views; the "
+        "first view (tree context, model table, XLA compilation) is listed separately. meshoptimizer: "
+        "`meshoptimizer.simplify` of the full mesh to the same triangle count, best of 2. Wall time and "
+        "process CPU time (CPU time is the robust figure on a shared machine).",
         "",
         "| mesh | triangles | nodes | build s | first view s | score ms | cut ms | extract ms | update ms "
         "(min) | update CPU ms | out triangles | distance k | meshopt ms | ratio (CPU ratio) |",
@@ -149,14 +153,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="one small procedural mesh (bumpy sphere, 82k triangles)")
     ap.add_argument("--views", type=int, default=8, help="views per mesh (default 8)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per view; the best counts (default 3)")
     ap.add_argument("--budget-fraction", type=float, default=0.1, help="budget as a fraction of the input")
     ap.add_argument("--method", choices=("qem", "octree"), default="qem", help="tree builder (default qem)")
     ap.add_argument("--metric", choices=("perceptual", "size", "geometric"), default="perceptual")
     ap.add_argument("--with-tree", action="store_true", help="also run experiments.bench_tree (its own report)")
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench_optim.md"))
     args = ap.parse_args(argv)
-    if args.views < 1 or not (0 < args.budget_fraction <= 1):
-        raise SystemExit("bench_optim: --views must be >= 1 and --budget-fraction in (0, 1]")
+    if args.views < 1 or args.repeat < 1 or not (0 < args.budget_fraction <= 1):
+        raise SystemExit("bench_optim: --views and --repeat must be >= 1 and --budget-fraction in (0, 1]")
     con = Console()
     meshes = []
     args.skipped = ""
@@ -176,7 +181,7 @@ def main(argv=None) -> int:
             con.print(f"mesh {name}: {f.shape[0]:,} triangles")
             recs.append(bench_mesh(name, v, f, method=args.method, n_views=args.views,
                                    budget_fraction=args.budget_fraction, metric=args.metric,
-                                   progress=progress, con=con))
+                                   progress=progress, con=con, repeat=args.repeat))
     out = atomic_write_text(args.out, report(recs, args))
     con.print(f"wrote {out}")
     if args.with_tree:

@@ -178,6 +178,19 @@ def _to_u(x: np.ndarray, leaf: _Leaf) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
+def _from_u_np(u: np.ndarray, leaf: _Leaf) -> np.ndarray:
+    """Numpy twin of ``_from_u`` (natural value only), for host-side bookkeeping."""
+    u = np.asarray(u, np.float64)
+    if leaf.kind == _IDENT:
+        return u
+    lim = float(np.log(np.finfo(np.float64).max)) - 2.0
+    if leaf.kind == _LOWER:
+        return leaf.lo + np.exp(np.clip(u, -lim, lim))
+    if leaf.kind == _UPPER:
+        return leaf.hi - np.exp(np.clip(u, -lim, lim))
+    return leaf.lo + (leaf.hi - leaf.lo) / (1.0 + np.exp(-np.clip(u, -lim, lim)))
+
+
 def _safe_exp(u):
     # exp guarded against overflow: beyond +-(log max - 2) the value saturates (gradient 0 there only)
     lim = float(np.log(np.finfo(jnp.result_type(u)).max)) - 2.0
@@ -268,11 +281,11 @@ class _Problem:
     def __init__(self, model, data, *, fit=None, multipliers=False, weighted=False, rows="auto"):
         _check_data(data)
         treedef, static_model, spec, leaves, _ = _layout(model, fit)
-        if isinstance(rows, str):
-            if rows != "auto":
-                raise ValueError(f"rows must be 'auto', 'all' or a boolean mask, got {rows!r}")
+        if isinstance(rows, str) and rows not in ("auto", "all"):
+            raise ValueError(f"rows must be 'auto', 'all' (or None) or a boolean mask, got {rows!r}")
+        if isinstance(rows, str) and rows == "auto":
             mask, reasons = expressible_rows(model, data)
-        elif rows is None:
+        elif rows is None or isinstance(rows, str):
             mask, reasons = np.ones(len(data), bool), []
         else:
             mask = np.asarray(rows)
@@ -330,9 +343,10 @@ class _Problem:
         out = list(leaves)
         off = 0
         for s in self.static.spec:
-            x, _ = _from_u(jnp.asarray(theta[off:off + s.size], jnp.float64), s)
+            x = _from_u_np(theta[off:off + s.size], s)
             dt = leaves[s.index].dtype if dtype_like else jnp.float64
-            out[s.index] = jnp.asarray(np.asarray(x).reshape(s.shape), dtype=dt)
+            with np.errstate(over="ignore"):  # a diverged fit (result code says so) may overflow float32
+                out[s.index] = jnp.asarray(x.reshape(s.shape).astype(dt))
             off += s.size
         return eqx.combine(jax.tree_util.tree_unflatten(self.static.treedef, out), self.static.static_model)
 
@@ -547,18 +561,18 @@ def _param_names(prob: _Problem) -> list[str]:
 def _natural_values(prob: _Problem, theta: np.ndarray) -> np.ndarray:
     out, off = [], 0
     for s in prob.static.spec:
-        x, _ = _from_u(jnp.asarray(theta[off:off + s.size]), s)
-        out.append(np.asarray(x, np.float64))
+        out.append(_from_u_np(theta[off:off + s.size], s))
         off += s.size
     if prob.static.multipliers:
-        out.append(np.asarray(_log10_multipliers(jnp.asarray(theta), prob.static), np.float64))
+        st = prob.static
+        w = np.asarray(theta[st.n_model:], np.float64)
+        out.append(np.concatenate([w, [-w.sum()]]) if st.n_groups > 1 else np.zeros(st.n_groups))
     return np.concatenate(out)
 
 
 def _device_args(prob: _Problem):
-    fixed = [jnp.asarray(x, jnp.float64) for x in prob.leaves]
-    arrays = {k: jnp.asarray(v) for k, v in prob.arrays.items()}
-    return fixed, arrays
+    # one batched host-to-device transfer (the caller has x64 enabled: float64 stays float64)
+    return jax.device_put(([np.asarray(x, np.float64) for x in prob.leaves], dict(prob.arrays)))
 
 
 def fit_least_squares(
@@ -586,8 +600,8 @@ def fit_least_squares(
             as the published castleCSF / stelaCSF fits do.
         fit: restrict fitting to these fields (default: every floating array field).
         weighted: weight rows by ``data.weights`` (the ``N`` column) instead of equally.
-        rows: ``"auto"`` (the rows the model can express, see ``expressible_rows``), ``None`` (all
-            rows) or a boolean mask of shape (n,).
+        rows: ``"auto"`` (the rows the model can express, see ``expressible_rows``), ``"all"`` or
+            ``None`` (every row) or a boolean mask of shape (n,).
         max_steps, rtol, atol: solver limits and tolerances.
 
     Returns:

@@ -10,10 +10,14 @@ footnote 2). Units of the keys:
 * ``"geometric"``: projected object-space fold error (``tree.geom_error``, largest distance from a
   supported vertex to the proxy), pixels, at the nearest point of the node's bounding sphere.
 
-Stages 1-6 are one jitted XLA function over all internal nodes (flat arrays), per view:
+Stages 1-6 are jitted XLA programs over all internal nodes (flat arrays; leaves have nothing to fold
+and get 0), per view. They run as three programs (``_facing_kernel``, ``_key_terms``,
+``_table_lookup``) rather than one: fused together, XLA:CPU recomputes shared per-node arithmetic
+inside scalar gather loops and measured about 1.5-2x slower.
 
-1. ``_cull``: sphere-frustum test and wholly-back-facing test (normal masks); culled nodes and their
-   whole subtrees are folded (key 0).
+1. ``_facing_flags`` / ``_terms``: sphere-frustum test and wholly-back-facing test (normal masks
+   against a per-direction table, made conservative for perspective by the node's angular radius);
+   culled nodes and their whole subtrees are folded (key 0).
 2. ``_extent``: angular size of the bounding sphere -> ``theta`` (deg of the viewer's visual field;
    the fold's lowest frequency is ``1 / (2 theta)`` cycles/deg, seed 004 section 3.1).
 3. ``_eccentricity``: angle (deg) between the node's image and the nearest gaze point minus half of
@@ -26,12 +30,14 @@ Stages 1-6 are one jitted XLA function over all internal nodes (flat arrays), pe
    mask overlapping both the possibly-front-facing and the possibly-back-facing cells, seed 001
    section 4.3) the node's luminance range against the scene's brightest and darkest values,
    background included (seed 001 section 4.2, seed 004 section 5.2).
-6. ``_key``: ``model.imperceptible_distance(c, theta, e, v)``, or the pixel keys.
+6. key: ``model.imperceptible_distance(c, theta, e, v)`` (``exact=True`` or with motion), else a
+   per-model table ``theta * K(c, e / theta)`` read on the conservative side; or the pixel keys.
 7. ``monotone``: maximum propagated from the deepest level up, and culling propagated down (two
    O(N) numpy passes over the breadth-first levels, ``np.maximum.reduceat`` per level).
 
-Per-tree device arrays (level order, packed normal masks) are built once: :func:`scoring_context`
-caches them on the tree.
+Per-tree device arrays (breadth-first order, compacted normal masks) are built once:
+:func:`scoring_context` caches them on the tree. Speed (2-core CPU, 796k-triangle mesh, 398k internal
+nodes): about 20-30 ms per view; see ``reports/bench_optim.md``.
 """
 
 from __future__ import annotations
@@ -57,6 +63,8 @@ _SIZE_CAP_IMAGES = 16.0
 _MARGINS_DEG = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 90.0)
 #: direction bins per cube-face side for the per-node view direction
 _DIR_BINS = 16
+#: internal nodes per chunk of the per-view programs (1 MiB float32 columns)
+_CHUNK = 262144
 
 
 # =============================================================================== stage 0: normal cube
@@ -164,17 +172,13 @@ def silhouette_table() -> np.ndarray:
 
 
 # =============================================================================== stage 1: per-tree context
-class ScoringContext(eqx.Module):
-    """Per-tree device arrays, built once by :func:`scoring_context` (cached on the tree).
-
-    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first
-    order with children grouped by parent. Flat float32 columns (M,): ``cx, cy, cz`` bounding-sphere
-    centre and ``radius`` (object units), ``lum_min``, ``lum_max``, ``fold_delta`` (relative
-    luminance), ``geom_error`` (object units); normal masks (48 bytes = 12 uint32 words) as ``word_idx``,
-    ``word_val`` (M, 2): the (up to) two nonzero words of each mask, ``wide`` (W,) the positions of
-    masks with more nonzero words and ``wide_mask`` (W, 12) their full masks; ``nonempty`` (M,) bool. ``passes`` (static) holds the numpy index arrays of the two tree passes
-    (culling down, maximum up); ``scene_lum`` the darkest and brightest relative luminance of the model.
-    """
+class _Chunk(eqx.Module):
+    """Device arrays of up to ``_CHUNK`` internal nodes (breadth-first order): flat float32 columns
+    ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units), ``lum_min``, ``lum_max``,
+    ``fold_delta`` (relative luminance), ``geom_error`` (object units); normal masks (48 bytes = 12
+    uint32 words) as ``word_idx``, ``word_val`` (C, 2): the (up to) two nonzero words of each mask,
+    ``wide`` (W,) positions of masks with more nonzero words and ``wide_mask`` (W, 12) their full
+    masks; ``nonempty`` (C,) bool."""
 
     cx: jax.Array
     cy: jax.Array
@@ -189,8 +193,21 @@ class ScoringContext(eqx.Module):
     wide: jax.Array
     wide_mask: jax.Array
     nonempty: jax.Array
-    passes: "_TreePasses" = eqx.field(static=True)
-    scene_lum: tuple = eqx.field(static=True)
+
+
+class ScoringContext:
+    """Per-tree data of :func:`score`, built once by :func:`scoring_context` (cached on the tree).
+
+    Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first
+    order with children grouped by parent, split into ``chunks`` (:class:`_Chunk`) of ``_CHUNK``
+    nodes: on arrays of more than about 2 MB XLA:CPU's per-element cost measured several times
+    higher, so each per-view program runs once per chunk. ``passes`` holds the numpy index arrays of
+    the two tree passes (culling down, maximum up); ``m`` is M; ``scene_lum`` the darkest and
+    brightest relative luminance of the model.
+    """
+
+    def __init__(self, chunks, passes, m, scene_lum):
+        self.chunks, self.passes, self.m, self.scene_lum = tuple(chunks), passes, m, scene_lum
 
 
 class _TreePasses:
@@ -321,16 +338,19 @@ def scoring_context(tree) -> ScoringContext:
         raise ValueError("score: an internal node's parent is not an internal node")
     levels = tuple(int(x) for x in np.searchsorted(depth_int, np.arange(int(depth_int.max()) + 2)))
     passes = _TreePasses(par, levels, node, n)
-    f32 = lambda a: jnp.asarray(np.asarray(a, np.float32)[node])  # noqa: E731
     center = np.asarray(tree.center, np.float32)[node]
     mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
     lum_min, lum_max = np.asarray(tree.lum_min, np.float32), np.asarray(tree.lum_max, np.float32)
-    ctx = ScoringContext(
-        cx=jnp.asarray(center[:, 0]), cy=jnp.asarray(center[:, 1]), cz=jnp.asarray(center[:, 2]),
-        radius=f32(tree.radius), lum_min=f32(lum_min), lum_max=f32(lum_max), fold_delta=f32(tree.fold_delta),
-        geom_error=f32(tree.geom_error), **_compact_masks(mask), nonempty=jnp.asarray((mask != 0).any(1)),
-        passes=passes, scene_lum=(float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))),
-    )
+    cols = dict(cx=center[:, 0], cy=center[:, 1], cz=center[:, 2], radius=np.asarray(tree.radius)[node],
+                lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(tree.fold_delta)[node],
+                geom_error=np.asarray(tree.geom_error)[node])
+    chunks = []
+    for a in range(0, m, _CHUNK):
+        sl = slice(a, min(a + _CHUNK, m))
+        mk = mask[sl]
+        chunks.append(_Chunk(**{k: jnp.asarray(np.ascontiguousarray(v[sl], np.float32)) for k, v in cols.items()},
+                             **_compact_masks(mk), nonempty=jnp.asarray((mk != 0).any(1))))
+    ctx = ScoringContext(chunks, passes, m, (float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))))
     try:
         object.__setattr__(tree, "_plod_scoring_context", ctx)
     except (AttributeError, TypeError):
@@ -444,7 +464,40 @@ def _project(cx, cy, cz, eye, rot):
     return (dx, dy, dz), x, y, depth
 
 
-def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_motion: bool, need: str) -> _Terms:
+def _facing_flags(ctx: _Chunk, vp: _ViewParams, table):
+    """(possibly front facing, possibly back facing) (M,) bool: the node's normal mask against the
+    table row of its view direction and angular-radius margin (seed 001 section 4.3).
+
+    ``table`` is (rows * 12, 2) uint32: for each row and mask word, the front and back words side by
+    side, so one gather fetches both. Most masks use at most 2 of their 12 words (``word_idx``); the
+    few wider ones gather whole rows. 'clip' mode avoids XLA's slow checked gather."""
+    r = ctx.radius
+    (dx, dy, dz), _, _, _ = _project(ctx.cx, ctx.cy, ctx.cz, vp.eye, vp.rot)
+    dist = jnp.sqrt(dx * dx + dy * dy + dz * dz)
+    s = jnp.clip(_safe_div(r, dist), 0.0, 1.0)
+    margins = np.sin(np.radians(_MARGINS_DEG[:-1])).astype(np.float32)
+    level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
+    level = jnp.where(dist <= r, len(_MARGINS_DEG) - 1, level)
+    row = level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz)
+    got = jnp.take(table, row[:, None] * 12 + ctx.word_idx, axis=0, mode="clip")  # (M, 2 words, front/back)
+    hit = jnp.any((got & ctx.word_val[:, :, None]) != 0, axis=1)  # (M, 2)
+    if ctx.wide.shape[0]:
+        rows = table.reshape(-1, 12, 2)
+        tab = jnp.take(rows, jnp.take(row, ctx.wide, mode="clip"), axis=0, mode="clip")  # (W, 12, 2)
+        wide_hit = jnp.any((tab & ctx.wide_mask[:, :, None]) != 0, axis=1)
+        hit = hit.at[ctx.wide].set(wide_hit, indices_are_sorted=True, unique_indices=True)
+    return hit[:, 0], hit[:, 1]
+
+
+@eqx.filter_jit
+def _facing_kernel(ctx, vp, table):
+    """``_facing_flags`` as its own XLA program: fused into the per-node terms, XLA:CPU duplicates the
+    direction-bin arithmetic into several gather loops (measured ~2x slower on 10^6 nodes)."""
+    return _facing_flags(ctx, vp, table)
+
+
+def _terms(ctx: _Chunk, vp: _ViewParams, table, has_gaze: bool, has_motion: bool, need: str,
+           facing=None) -> _Terms:
     focal, tan_x, tan_y, near, size_cap, dpp, kx, ky, gaze_err, inv_dt = (vp.scal[i] for i in range(10))
     r = ctx.radius
     (dx, dy, dz), x, y, depth = _project(ctx.cx, ctx.cy, ctx.cz, vp.eye, vp.rot)
@@ -457,27 +510,10 @@ def _terms(ctx: ScoringContext, vp: _ViewParams, table, has_gaze: bool, has_moti
                | ((x - tan_x * depth) * ix > r) | ((-x - tan_x * depth) * ix > r)
                | ((y - tan_y * depth) * iy > r) | ((-y - tan_y * depth) * iy > r))
     s = jnp.clip(_safe_div(r, dist), 0.0, 1.0)  # sin of the angular radius
-    #     wholly back facing / silhouette: normal mask against the per-direction table
-    margins = np.sin(np.radians(_MARGINS_DEG[:-1])).astype(np.float32)
-    level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
-    level = jnp.where(inside, len(_MARGINS_DEG) - 1, level)
-    row = jax.lax.optimization_barrier(level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz))
-    # most nodes' masks use at most 2 of the 12 words: test those words with scalar gathers; the few
-    # wider masks gather whole table rows ('clip' mode: no slow checked gather)
-    flat = table.reshape(-1)
-    base = row * 24
-    front = back = None
-    for k in range(2):
-        w, val = ctx.word_idx[:, k], ctx.word_val[:, k]
-        f_k = (jnp.take(flat, base + w, mode="clip") & val) != 0
-        b_k = (jnp.take(flat, base + 12 + w, mode="clip") & val) != 0
-        front = f_k if front is None else front | f_k
-        back = b_k if back is None else back | b_k
-    if ctx.wide.shape[0]:
-        tab = jnp.take(table, jnp.take(row, ctx.wide, mode="clip"), axis=0, mode="clip").reshape(-1, 2, 12)
-        hit = jnp.any((tab & ctx.wide_mask[:, None, :]) != 0, axis=2)
-        front = front.at[ctx.wide].set(hit[:, 0], indices_are_sorted=True, unique_indices=True)
-        back = back.at[ctx.wide].set(hit[:, 1], indices_are_sorted=True, unique_indices=True)
+    #     wholly back facing / silhouette: normal mask against the per-direction table (``_facing``)
+    if facing is None:
+        facing = _facing_flags(ctx, vp, table)
+    front, back = facing
     backfacing = ctx.nonempty & ~front
     silhouette = front & back
     culled = (outside & ~inside) | backfacing
@@ -575,45 +611,51 @@ def _model_table(model):
     return tab
 
 
-def _table_key(ktab, c, theta, ecc):
-    """theta * K(c rounded up, ecc / theta rounded down): an upper bound of the exact key within the
-    table's resolution (3.7 % in contrast, 15.7 % in the eccentricity-to-size ratio; ratios below 0.01
-    use 0, above 1e4 use 1e4)."""
+def _table_index_impl(c, theta, ecc):
+    """Flat index into the key table of (c rounded up, ecc / theta rounded down), -1 where the key is
+    0 (no contrast or no extent). Computed apart from the gather (``_table_lookup``): fused into it,
+    XLA:CPU computes the indices with scalar code (log10 per element), several times slower."""
     lc0, lc1, nc = _TAB_C
     lr0, lr1, nr = _TAB_R
     pos_c = c > 0
     lc = jnp.log10(jnp.where(pos_c, jnp.maximum(c, 10.0 ** lc0), 1.0))
     j = jnp.clip(jnp.ceil((lc - lc0) * ((nc - 1) / (lc1 - lc0)) - 1e-4), 0, nc - 1).astype(jnp.int32)
-    pos_t = theta > 0
     ratio = _safe_div(ecc, theta)
     small = ratio < 10.0 ** lr0
     lr = jnp.log10(jnp.where(small, 1.0, ratio))
     i = jnp.where(small, 0, 1 + jnp.clip(jnp.floor((lr - lr0) * ((nr - 2) / (lr1 - lr0))), 0, nr - 2)).astype(jnp.int32)
-    # the barrier materialises the indices first: fused into the gather, they would be computed by
-    # scalar (unvectorised) code, ~20x slower on XLA:CPU
-    idx = jax.lax.optimization_barrier(j * nr + i)
-    return jnp.where(pos_c & pos_t, theta * jnp.take(ktab, idx, mode="clip"), 0.0)
+    return jnp.where(pos_c & (theta > 0), j * nr + i, -1)
+
+
+@jax.jit
+def _table_lookup(ktab, idx, theta):
+    """theta * K(c rounded up, ecc / theta rounded down): an upper bound of the exact key within the
+    table's resolution (3.7 % in contrast, 15.7 % in the eccentricity-to-size ratio; ratios below 0.01
+    use 0, above 1e4 use 1e4). ``idx`` from ``_table_index_impl``; 0 where it is -1."""
+    return jnp.where(idx >= 0, theta * jnp.take(ktab, idx, mode="clip"), 0.0).astype(jnp.float32)
 
 
 @eqx.filter_jit
-def _key_terms(ctx, vp, table, metric, has_gaze, has_motion):
-    """Stages 1-5: (cull flag, the metric's input terms) of every internal node."""
-    t = _terms(ctx, vp, table, has_gaze, has_motion, metric)
+def _key_terms(ctx, vp, facing, metric, has_gaze, has_motion, table_mode=False):
+    """Stages 1-5: (cull flag, the metric's input terms) of every internal node. Only what stage 6
+    needs leaves the program (per-node arrays of 10^6 nodes no longer fit in cache): with
+    ``table_mode`` the key-table index and theta, else (contrast, theta[, ecc][, vel]) or the pixel key."""
+    t = _terms(ctx, vp, None, has_gaze, has_motion, metric, facing)
     if metric == "perceptual":
-        return t.culled, (t.contrast, t.theta, t.ecc, t.vel)
+        if table_mode:
+            return t.culled, (_table_index_impl(t.contrast, t.theta, t.ecc), t.theta)
+        return t.culled, (t.contrast, t.theta, t.ecc if has_gaze else None, t.vel if has_motion else None)
     return t.culled, (t.size_px if metric == "size" else t.err_px,)
 
 
 @eqx.filter_jit
 def _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion):
-    """Stage 6: raw key (M,) float32 >= 0. A separate XLA program: fused with stages 1-5, XLA:CPU
+    """Stage 6 without the key table (``exact=True``, motion, pixel metrics): raw key (M,) float32 >= 0.
+    A separate XLA program: fused with stages 1-5, XLA:CPU
     recomputes shared intermediates and runs ~1.5x slower."""
     if metric == "perceptual":
         contrast, theta, ecc, vel = terms
-        if ktab is not None and not has_motion:
-            key = _table_key(ktab, contrast, theta, ecc)
-        else:
-            key = model.imperceptible_distance(contrast, theta, ecc if has_gaze else 0.0, vel if has_motion else 0.0)
+        key = model.imperceptible_distance(contrast, theta, ecc if has_gaze else 0.0, vel if has_motion else 0.0)
         key = jnp.where(jnp.isnan(key), 1e30, jnp.minimum(key, 1e30))
     else:
         key = terms[0]
@@ -621,14 +663,30 @@ def _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion):
 
 
 def _key_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
-    """Raw key (M,) float32 and cull flag (M,) of every internal node (stages 1-6)."""
-    culled, terms = _key_terms(ctx, vp, table, metric, has_gaze, has_motion)
-    return _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion), culled
+    """Raw key (M,) float32 and cull flag (M,) of every internal node (stages 1-6), chunk by chunk
+    (all chunks are dispatched before any result is read)."""
+    table_mode = metric == "perceptual" and ktab is not None and not has_motion
+    outs = []
+    for ch in ctx.chunks:
+        culled, terms = _key_terms(ch, vp, _facing_kernel(ch, vp, table), metric, has_gaze, has_motion, table_mode)
+        if table_mode:
+            key = _table_lookup(ktab, terms[0], terms[1])
+        else:
+            key = _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion)
+        outs.append((key, culled))
+    if len(outs) == 1:
+        return np.asarray(outs[0][0]), np.asarray(outs[0][1])
+    return (np.concatenate([np.asarray(k) for k, _ in outs]), np.concatenate([np.asarray(c) for _, c in outs]))
 
 
 @eqx.filter_jit
+def _terms_jit(ctx, vp, facing, has_gaze, has_motion):
+    return _terms(ctx, vp, None, has_gaze, has_motion, "perceptual", facing)
+
+
 def _terms_kernel(ctx, vp, table, has_gaze, has_motion):
-    return _terms(ctx, vp, table, has_gaze, has_motion, "perceptual")
+    parts = [_terms_jit(ch, vp, _facing_kernel(ch, vp, table), has_gaze, has_motion) for ch in ctx.chunks]
+    return _Terms(*(np.concatenate([np.asarray(getattr(p, f)) for p in parts]) for f in _Terms._fields))
 
 
 # =============================================================================== public API
@@ -668,8 +726,8 @@ def node_terms(tree, view) -> NodeTerms:
     vp = _view_params(view, ctx)
     t = _terms_kernel(ctx, vp, _table_device(), view.gaze_px is not None, view.previous is not None)
     tp = ctx.passes
-    culled = tp.propagate_culled(np.asarray(t.culled))
-    return NodeTerms(*(tp.to_tree(np.asarray(a), False if np.asarray(a).dtype == bool else 0.0)
+    culled = tp.propagate_culled(t.culled)
+    return NodeTerms(*(tp.to_tree(a, False if a.dtype == bool else 0.0)
                        for a in (culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc, t.vel, t.contrast)))
 
 
@@ -712,7 +770,8 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
 
 @functools.lru_cache(maxsize=1)
 def _table_device_cached(_key):
-    return jnp.asarray(silhouette_table())
+    t = silhouette_table()  # (rows, 24): front words 0..11, back words 12..23
+    return jnp.asarray(np.ascontiguousarray(np.stack([t[:, :12], t[:, 12:]], axis=-1).reshape(-1, 2)))
 
 
 def _table_device():

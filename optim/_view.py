@@ -59,7 +59,8 @@ class View(eqx.Module):
     """A camera, the display it is shown on, the viewer's gaze and (optionally) the previous view.
 
     Fields (numpy, float64): ``eye``, ``target``, ``up`` (3,) object units; ``fov_deg`` vertical field
-    of view (deg); ``width``, ``height`` image size (pixels); ``display`` (:class:`pmetric.Display`);
+    of view (deg; default: the angle the image subtends at the viewer, so rendering is geometrically
+    correct for this display); ``width``, ``height`` image size (pixels); ``display`` (:class:`pmetric.Display`);
     ``gaze_px`` (G, 2) gaze points in pixels or None (no gaze: eccentricity 0 everywhere);
     ``gaze_error_deg`` (deg); ``background`` relative luminance (0..1) of the background, used for
     silhouette contrast; ``near`` near-plane distance (object units); ``previous`` (View or None) and
@@ -83,6 +84,7 @@ class View(eqx.Module):
     near: float = eqx.field(static=True)
     previous: "View | None"
     dt_s: float = eqx.field(static=True)
+    _geom: tuple = eqx.field(static=True)  # (pitch x m, pitch y m, distance m, deg per px), cached
 
     def __init__(
         self,
@@ -114,12 +116,15 @@ class View(eqx.Module):
         if not isinstance(display, pmetric.Display):
             raise ValueError(f"View: display must be a pmetric.Display, got {type(display).__name__}")
         self.display = display
+        pitch = display.pixel_pitch
+        self._geom = (float(pitch[0]), float(pitch[1]), float(display.distance), float(display.degrees_per_pixel()))
         if image_size is None:
             image_size = display.resolution
         try:
             w, h = (int(s) for s in image_size)
         except (TypeError, ValueError):
-            raise ValueError(f"View: image_size must be two positive integers (width, height), got {image_size!r}") from None
+            raise ValueError(
+                f"View: image_size must be two positive integers (width, height), got {image_size!r}") from None
         if w <= 0 or h <= 0:
             raise ValueError(f"View: image_size must be two positive integers (width, height), got {image_size!r}")
         self.width, self.height = w, h
@@ -193,18 +198,17 @@ class View(eqx.Module):
     @property
     def pixel_pitch_m(self) -> tuple[float, float]:
         """(horizontal, vertical) size of one pixel on the display, m."""
-        px, py = self.display.pixel_pitch
-        return float(px), float(py)
+        return self._geom[0], self._geom[1]
 
     @property
     def distance_m(self) -> float:
         """Viewing distance from the eye to the screen centre, m."""
-        return float(self.display.distance)
+        return self._geom[2]
 
     @property
     def degrees_per_pixel(self) -> float:
         """Visual angle of one pixel at the screen centre (deg)."""
-        return float(self.display.degrees_per_pixel())
+        return self._geom[3]
 
     def project(self, points) -> tuple[np.ndarray, np.ndarray]:
         """World points (..., 3) -> (pixel coordinates (..., 2), depth along the view axis (...)).
@@ -242,7 +246,8 @@ class View(eqx.Module):
         try:
             g = np.asarray(gaze, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got {gaze!r}") from None
+            raise ValueError(
+                f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got {gaze!r}") from None
         if g.ndim == 1:
             g = g[None]
         if g.ndim != 2 or g.shape[0] == 0 or g.shape[1] not in (2, 3):

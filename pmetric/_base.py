@@ -34,6 +34,7 @@ LOG_CT_MAX = 60.0
 
 # Search range (cycles/deg) of the generic numerical inversions.
 _F_LO, _F_HI = 1e-4, 1e4
+_N_GRID = 257  # grid points of the generic distance scan: ln(1e8) / 256 = 0.072 per step
 
 
 def _is_tracer(x) -> bool:
@@ -107,6 +108,22 @@ class CSFModel(eqx.Module):
     inputs: ClassVar[tuple[str, ...]] = ("f",)
     param_bounds: ClassVar[dict[str, tuple[float | None, float | None]]] = {}
 
+    # ----------------------------------------------------------------- dtype
+    def _like(self, *xs):
+        """The model with its floating array fields cast to the inputs' floating dtype.
+
+        A model built under ``jax_enable_x64`` (float64 fields) then used without it (or on float32
+        inputs) computes in the inputs' dtype instead of mixing dtypes (which warns). Gradients flow
+        through the cast. A no-op when the dtypes already agree."""
+        dtype = jnp.result_type(*(jnp.asarray(x).dtype for x in xs if x is not None), float)
+
+        def cast(x):
+            if eqx.is_inexact_array(x) and x.dtype != dtype:
+                return x.astype(dtype)
+            return x
+
+        return jax.tree_util.tree_map(cast, self)
+
     # ----------------------------------------------------------------- the model
     @abc.abstractmethod
     def sensitivity(self, f, e=0.0, v=0.0):
@@ -130,6 +147,7 @@ class CSFModel(eqx.Module):
     def threshold_contrast(self, f, e=0.0, v=0.0):
         """Threshold Michelson contrast c_T = 1/S (capped at ``exp(LOG_CT_MAX)``, about 1e26)."""
         f, e, v = check_inputs("threshold_contrast", f=f, e=e, v=v)
+        self = self._like(f, e, v)
         return jnp.exp(jnp.minimum(-self.log_sensitivity(f, e, v), LOG_CT_MAX))
 
     def peak_frequency(self, e=0.0, v=0.0):
@@ -140,6 +158,7 @@ class CSFModel(eqx.Module):
         d(log S)/d(log f) = 0. Subclasses override with closed forms.
         """
         e, v = check_inputs("peak_frequency", e=e, v=v)
+        self = self._like(e, v)
         return self._peak_frequency(e, v)
 
     def _peak_frequency(self, e, v):
@@ -189,6 +208,7 @@ class CSFModel(eqx.Module):
         frequency the peak's threshold is used, the worst case of seed 004 sections 3.1 and 6.1).
         Bool array of the broadcast shape. NaN inputs under jit give False."""
         c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        self = self._like(c, f, e, v)
         fe = jnp.maximum(f, self._peak_frequency(e, v))
         return _log_guard(c) + self.log_sensitivity(fe, e, v) >= 0
 
@@ -201,6 +221,7 @@ class CSFModel(eqx.Module):
         cycles/deg (results are capped at 1e4); exact implicit-function gradient.
         """
         c, e, v = check_inputs("threshold_frequency", c=c, e=e, v=v)
+        self = self._like(c, e, v)
         return self._threshold_frequency(c, e, v)
 
     def _threshold_frequency(self, c, e, v):
@@ -225,10 +246,15 @@ class CSFModel(eqx.Module):
 
     # ----------------------------------------------------------------- distance key
     def _distance_margin(self, k, c, theta, e, v):
-        """log c - log c_T at distance multiple ``k`` (perceptible iff >= 0)."""
+        """log c - log c_T at distance multiple ``k`` (perceptible iff >= 0).
+
+        The peak frequency enters under ``stop_gradient``: where it binds (f below the peak) the
+        margin is log S at its maximum over f, so by the envelope theorem its derivative with respect
+        to the peak location is 0 and every derivative of the margin stays exact, without
+        differentiating the peak search."""
         f = k / (2.0 * theta)
         ek, vk = e / k, v / k
-        fe = jnp.maximum(f, self._peak_frequency(ek, vk))
+        fe = jnp.maximum(f, lax.stop_gradient(self._peak_frequency(ek, vk)))
         return _log_guard(c) + self.log_sensitivity(fe, ek, vk)
 
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
@@ -241,17 +267,27 @@ class CSFModel(eqx.Module):
         at every ``k' > k``; at ``k`` itself it is perceptible (within 1e-4 relative) unless k = 0.
         ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0.
 
-        Generic method: the LARGEST perceptible ``k`` is found by scanning a 65-point log grid of
-        ``f = k / (2 theta)`` over [1e-4, 1e4] cycles/deg from the bottom, keeping the last perceptible
-        grid point and refining the crossing above it by safeguarded Newton (so perceptibility that
-        is not monotone in ``k``, e.g. through a velocity term, is handled). Results are capped at
-        ``2e4 theta``; perceptibility only below ``2e-4 theta`` reports 0. Implicit-function gradient.
-        Subclasses override it with closed forms.
+        Generic method. A model whose ``inputs`` include neither ``"e"`` nor ``"v"`` is perceptible at
+        ``k`` iff ``k / (2 theta) <= threshold_frequency(c)``, so ``k = 2 theta threshold_frequency(c)``
+        exactly. Otherwise the LARGEST perceptible ``k`` is found by scanning a log grid of
+        ``f = k / (2 theta)`` over [1e-4, 1e4] cycles/deg (``_N_GRID`` = 257 points, one step = 7.5 % in
+        k) from the bottom, keeping the last perceptible grid point and refining the crossing above
+        it by safeguarded Newton (so perceptibility that is not monotone in ``k``, through an
+        eccentricity or velocity term, is handled). Guarantee: the answer is exact (to the root
+        finder's precision) unless the set of perceptible ``k`` has a component lying entirely above
+        the last perceptible grid point and strictly between two grid points, i.e. a perceptible
+        window narrower than one grid step (7.5 % in k) above every other perceptible k; such a
+        window is missed. Results are capped at ``2e4 theta``; perceptibility only below
+        ``2e-4 theta`` reports 0. Implicit-function gradient. Subclasses override it with closed forms.
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        self = self._like(c, theta, e, v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, theta, e, v, float)
         pos = theta > 0
+        if "e" not in self.inputs and "v" not in self.inputs:
+            k = 2.0 * theta * self._threshold_frequency(c, e, v)
+            return jnp.broadcast_to(jnp.where(pos, k, 0.0), shape).astype(dtype)
         th = jnp.where(pos, theta, 1.0)
         th_sg = lax.stop_gradient(th)
 
@@ -262,7 +298,7 @@ class CSFModel(eqx.Module):
         g_sg = lambda w: ms._distance_margin(jnp.exp(w), c_, th_sg, e_, v_)  # noqa: E731
         w_lo = jnp.broadcast_to(jnp.log(2.0 * th_sg * _F_LO), shape).astype(dtype)
         w_hi = jnp.broadcast_to(jnp.log(2.0 * th_sg * _F_HI), shape).astype(dtype)
-        w_star, found, saturated = largest_crossing(g_sg, w_lo, w_hi)
+        w_star, found, saturated = largest_crossing(g_sg, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
         ok = found & ~saturated & pos
         w = implicit_root(g, w_star, mask=ok)
         k = jnp.where(found & pos, jnp.exp(w), 0.0)

@@ -24,7 +24,7 @@ import numpy as np
 from jax import lax
 
 from ._base import CSFModel, _is_tracer, _log_guard, check_inputs
-from ._inverse import implicit_root, lambertw_m1
+from ._inverse import implicit_root, lambertw_m1, largest_crossing
 
 __all__ = ["ManosSakrison", "KellyAbstract", "KellySpatioTemporal", "RovamoVirsu", "Eccentric"]
 
@@ -127,6 +127,7 @@ class ManosSakrison(CSFModel):
     def sensitivity(self, f, e=0.0, v=0.0):
         """S(f) = peak_sensitivity A(f)/A_max (e, v ignored); broadcast shape of f, e, v."""
         f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        self = self._like(f, e, v)
         return jnp.exp(self.log_sensitivity(f, e, v))
 
     def _peak_frequency(self, e, v):
@@ -159,6 +160,7 @@ class ManosSakrison(CSFModel):
         """Closed in terms of the threshold frequency (no e, v dependence): k = 2 theta f*(c).
         See :meth:`CSFModel.imperceptible_distance` for the definition; theta in deg."""
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        self = self._like(c, theta, e, v)
         return 2.0 * theta * self._threshold_frequency(c, e, v)
 
 
@@ -213,6 +215,7 @@ class KellyAbstract(CSFModel):
     def sensitivity(self, f, e=0.0, v=0.0):
         """S = delta alpha^2 exp(-alpha), alpha = 2 (1 + 0.29 e) f / f0; broadcast shape of f, e, v."""
         f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        self = self._like(f, e, v)
         a = self._alpha(f, e)
         out = self.delta * a * a * jnp.exp(-a)
         return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
@@ -232,6 +235,7 @@ class KellyAbstract(CSFModel):
     def is_perceptible(self, c, f, e=0.0, v=0.0):
         """c >= c_T(max(f, f_peak)); fused closed form (see :meth:`CSFModel.is_perceptible`)."""
         c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        self = self._like(c, f, e, v)
         a = jnp.maximum(self._alpha(f, e), 2.0)
         out = _log_guard(c) + jnp.log(self.delta) + 2.0 * jnp.log(a) - a >= 0
         return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
@@ -247,6 +251,7 @@ class KellyAbstract(CSFModel):
         ``k = max(0, theta f0 alpha* - 0.29 e)`` (0 where c is invisible even at the peak).
         See :meth:`CSFModel.imperceptible_distance` for the definition; theta in deg."""
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        self = self._like(c, theta, e, v)
         a, visible = self._alpha_star(c)
         k = jnp.maximum(theta * self.f0 * a - 0.29 * e, 0.0)
         out = jnp.where(visible, k, 0.0)
@@ -261,6 +266,42 @@ _KELLY_CONSTANTS = {
 }
 
 
+def _compacted(fn, mask, args, frac: int = 4):
+    """``fn(*args)`` (elementwise, returning ``(values, flags)``) evaluated only where ``mask``.
+
+    The masked elements are gathered into a buffer of ``size // frac`` (static) and ``fn`` runs on it;
+    when more elements are masked, ``fn`` runs on the whole array; when none, not at all (lax.cond).
+    Elsewhere the result is ``(0, False)``."""
+    shape = mask.shape
+    flat = [jnp.broadcast_to(a, shape).reshape(-1) for a in args]
+    m = mask.reshape(-1)
+    n = m.size
+    nb = max(1, n // frac)
+    zeros = (jnp.zeros((n,), flat[0].dtype), jnp.zeros((n,), bool))
+
+    def full(_):
+        return fn(*flat)
+
+    def compact(_):
+        (idx,) = jnp.nonzero(m, size=nb, fill_value=n)  # padding: out of range, dropped below
+        w, ok = fn(*(a[jnp.minimum(idx, n - 1)] for a in flat))
+        return zeros[0].at[idx].set(w, mode="drop"), zeros[1].at[idx].set(ok, mode="drop")
+
+    count = m.sum()
+    branch = jnp.where(count == 0, 0, jnp.where(count <= nb, 1, 2))
+    w, ok = lax.switch(branch, [lambda _: zeros, compact, full], None)
+    return w.reshape(shape), ok.reshape(shape)
+
+
+def _kelly_c0():
+    """max over t > 0 of 6 t / (1 + t^3) - 9 t^4 / (1 + t^3)^2 (curvature bound of ln(a0 + a1 |x|^3))."""
+    t = np.linspace(1e-4, 5.0, 200001)
+    return float((6 * t / (1 + t**3) - 9 * t**4 / (1 + t**3) ** 2).max()) * (1 + 1e-6)
+
+
+_KELLY_C0 = _kelly_c0()  # 2.2300
+
+
 class KellySpatioTemporal(CSFModel):
     """Kelly (1979) stabilized spatio-temporal CSF: sensitivity to a grating drifting at ``v`` deg/s.
 
@@ -272,9 +313,9 @@ class KellySpatioTemporal(CSFModel):
     term (``e`` ignored; wrap in :class:`Eccentric`).
 
     ``threshold_frequency`` is a closed form (Lambert W, as for :class:`KellyAbstract` with
-    ``delta = K(v) v / (b (v+2))^2``). ``imperceptible_distance`` uses the generic largest-crossing
-    solver (perceptibility is not monotone in distance through the velocity term) with a closed form
-    for ``v = 0`` and where the answer lies beyond ``k = 10 v`` (retinal velocity clamped there).
+    ``delta = K(v) v / (b (v+2))^2``). ``imperceptible_distance`` is a direct solve (closed form where
+    the answer lies beyond ``k = 10 v``, monotone Newton where the margin is concave in ln k, a scan
+    only for the rest; see the method).
 
     Domain: f in [0, 1e30], v in [0, 1e4]; values and gradients finite.
     """
@@ -314,6 +355,7 @@ class KellySpatioTemporal(CSFModel):
     def sensitivity(self, f, e=0.0, v=0.0):
         """S(f, v) of Kelly 1979 (v clamped to >= 0.1 deg/s); broadcast shape of f, e, v."""
         f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        self = self._like(f, e, v)
         return jnp.exp(self.log_sensitivity(f, e, v))
 
     def _peak_frequency(self, e, v):
@@ -323,6 +365,7 @@ class KellySpatioTemporal(CSFModel):
     def is_perceptible(self, c, f, e=0.0, v=0.0):
         """Fused closed form of :meth:`CSFModel.is_perceptible`."""
         c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        self = self._like(c, f, e, v)
         vv = self._v(v)
         beta = self.b * (vv + 2.0)
         a = jnp.maximum(beta * jnp.minimum(f, 1e30), 2.0)  # alpha = beta f, clamped at the peak
@@ -338,17 +381,90 @@ class KellySpatioTemporal(CSFModel):
         out = jnp.where(visible, -2.0 * lambertw_m1(x) / beta, 0.0)
         return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, e.shape))
 
+    def _margin(self, c, k, theta, v):
+        """Fused ``log c - log c_T(max(f, f_peak))`` at distance multiple k (f = k / 2 theta, v / k)."""
+        vv = self._v(v / k)
+        beta = self.b * (vv + 2.0)
+        a = jnp.maximum(beta * k / (2.0 * theta), 2.0)
+        return _log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta) + 2.0 * jnp.log(a) - a
+
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
-        """See :meth:`CSFModel.imperceptible_distance`. With ``k0 = 2 theta f*(c, 0.1)``: where
-        ``v = 0`` or ``k0 >= 10 v`` (the retinal velocity v/k is clamped to 0.1 there and perceptibility
-        falls monotonically with k) the answer is ``k0``; elsewhere the generic largest-crossing search."""
+        """See :meth:`CSFModel.imperceptible_distance`; theta deg, v deg/s. Direct solve in ``w = ln k``:
+
+        1. ``k0 = 2 theta f*(c, 0.1)`` (Lambert W). For ``k >= 10 v`` the retinal velocity v/k is clamped
+           at 0.1 and perceptibility falls with k, so where ``k0 >= 10 v`` (e.g. v = 0) the answer is k0;
+           elsewhere every perceptible k is below ``10 v``.
+        2. For ``k_p <= k < 10 v`` (``k_p = 2 theta / b - v / 2``: there ``f >= f_peak(v / k)``, the
+           falling limb) the margin is ``h(w) = ln c + ln K(v/k) + ln(v k / 4 theta^2) - b (v / 2 theta + k / theta)``,
+           whose second derivative in w is at most ``kappa - b k / theta`` (``kappa = r^(2/3) C0 / ln(10)^2``
+           bounds ``d^2 ln K / dw^2``, ``r = a1 / a0``, ``C0 = 2.2300``), so h is concave for
+           ``k >= k_c = max(k_p, kappa theta / b)``: Newton from ``10 v`` descends monotonically onto the
+           largest root there (12 steps).
+        3. Only where step 2 finds nothing perceptible is ``k < k_c`` searched: a 129-point log grid on
+           ``[2e-4 theta, k_c]`` (one step <= 10 % in k) refined by safeguarded Newton, skipped (lax.cond)
+           when no element of the batch needs it. It can miss a perceptible window narrower than one
+           grid step lying above every perceptible grid point (as the generic solver).
+        Gradients: implicit-function theorem on the fused margin.
+        """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
-        k0 = 2.0 * theta * self._threshold_frequency(c, e, jnp.zeros_like(v))
+        self = self._like(c, theta, e, v)
+        shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
+        dtype = jnp.result_type(c, theta, e, v, float)
+        c, theta, v = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, v))
+        pos = theta > 0
+        th = jnp.where(pos, theta, 1.0)
+        k0 = 2.0 * th * self._threshold_frequency(c, jnp.zeros_like(c), jnp.zeros_like(v))
         easy = k0 >= 10.0 * v
         if not _is_tracer(easy) and bool(np.all(np.asarray(easy))):
-            return jnp.broadcast_to(k0, jnp.broadcast_shapes(k0.shape, v.shape))
-        kg = CSFModel.imperceptible_distance(self, c, theta, e, v)
-        return jnp.where(easy, k0, kg)
+            return jnp.where(pos, k0, 0.0)
+        sg = lax.stop_gradient
+        ms, c_, th_, v_ = sg((self, c, th, v))
+        eps = jnp.finfo(dtype).eps
+        vpos = v_ > 0
+        vs = jnp.where(vpos, v_, 1.0)
+        b = ms.b
+        r = jnp.maximum(ms.a1 / ms.a0, 0.0)
+        kappa = 1.01 * r ** (2.0 / 3.0) * _KELLY_C0 / math.log(10.0) ** 2
+        k_c = jnp.maximum(2.0 * th_ / b - 0.5 * v_, kappa * th_ / b)
+        w_c = jnp.log(jnp.maximum(k_c, 2e-4 * th_))
+        w_top = jnp.log(10.0 * vs)
+        const = _log_guard(c_) + jnp.log(vs) - 2.0 * jnp.log(2.0 * th_) - b * v_ / (2.0 * th_)
+        l10 = math.log(10.0)
+        x0 = jnp.log10(vs / 3.0)
+
+        def h_dh(w):
+            x = x0 - w / l10
+            ax = jnp.abs(x)
+            kk = ms.a0 + ms.a1 * ax * ax * ax
+            bk = b * jnp.exp(w) / th_
+            return const + jnp.log(kk) + w - bk, -3.0 * ms.a1 * x * ax / (l10 * kk) + 1.0 - bk
+
+        def newton(_, w):
+            h, dh = h_dh(w)
+            return w - jnp.where((h < 0) & (dh < 0), h / jnp.minimum(dh, -eps), 0.0)
+
+        regA = vpos & ~easy & (w_c < w_top)
+        wA = lax.fori_loop(0, 12, newton, jnp.where(regA, w_top, 0.0))
+        hA, _ = h_dh(wA)
+        foundA = regA & (hA >= -64.0 * eps) & (wA >= w_c - 1e-6)
+        needB = vpos & ~easy & ~foundA
+        g_sg = lambda w: ms._margin(c_, jnp.exp(w), th_, v_)  # noqa: E731
+        w_lo = jnp.log(2e-4 * th_)
+        w_hiB = jnp.maximum(jnp.minimum(w_c, w_top), w_lo + 1e-3)
+
+        def search_b(c1, th1, v1, lo1, hi1):
+            g1 = lambda w: ms._margin(c1, jnp.exp(w), th1, v1)  # noqa: E731
+            w, found, _sat = largest_crossing(g1, lo1, hi1, n_grid=129, n_iter=40)
+            return w, found
+
+        wB, foundB = _compacted(search_b, needB, (c_, th_, v_, w_lo, w_hiB))
+        foundB = needB & foundB
+        w_star = jnp.where(foundA, wA, jnp.where(foundB, wB, 0.0))
+        ok = (foundA | foundB) & pos
+        g = lambda w: self._margin(c, jnp.exp(w), th, v)  # noqa: E731
+        w = implicit_root(g, w_star, mask=ok)
+        k = jnp.where(ok, jnp.exp(w), 0.0)
+        return jnp.where(pos & easy, k0, k)
 
 
 # --------------------------------------------------------------------------- Rovamo-Virsu
@@ -422,6 +538,7 @@ class Eccentric(CSFModel):
     def sensitivity(self, f, e=0.0, v=0.0):
         """csf S(f / M(e), 0, v); broadcast shape of f, e, v."""
         f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
+        self = self._like(f, e, v)
         return jnp.exp(self.log_sensitivity(f, e, v))
 
     def _peak_frequency(self, e, v):
@@ -438,6 +555,7 @@ class Eccentric(CSFModel):
         if "v" in type(self.csf).inputs:
             return CSFModel.imperceptible_distance(self, c, theta, e, v)
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        self = self._like(c, theta, e, v)
         F = 2.0 * theta * self.csf._threshold_frequency(c, jnp.zeros_like(e), v)
         k1, k3 = self.magnification.k1, self.magnification.k3
         ku = F - k1 * e

@@ -3,20 +3,71 @@
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
+from typing import ClassVar
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from _fit_toy import TRUE, ToyCSF, simulate  # noqa: E402
+import optim
+from optim import _fit
+from pmetric import CalibrationData
+from pmetric._base import CSFModel as _Base
 
-import optim  # noqa: E402
-from optim import _fit  # noqa: E402
-from pmetric import CalibrationData  # noqa: E402
+
+# ------------------------------------------------------------------------------ a small test model
+def _arr(x):
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+class ToyCSF(_Base):
+    """log-parabola CSF with an eccentricity drop: 4 constants, bounds of every kind.
+
+    log10 S = log10 gain - (log10 f - log10 f_peak)^2 / width - drop * e * f
+    """
+
+    gain: jax.Array = eqx.field(converter=_arr, default=200.0)
+    f_peak: jax.Array = eqx.field(converter=_arr, default=4.0)
+    width: jax.Array = eqx.field(converter=_arr, default=1.2)
+    drop: jax.Array = eqx.field(converter=_arr, default=0.01)
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e")
+    param_bounds: ClassVar[dict] = {
+        "gain": (0.0, None), "f_peak": (0.1, 60.0), "width": (0.05, 20.0), "drop": (0.0, 1.0),
+    }
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        f = jnp.asarray(f)
+        ok = f > 0
+        lf = jnp.log10(jnp.where(ok, f, 1.0))
+        ls = jnp.log10(self.gain) - (lf - jnp.log10(self.f_peak)) ** 2 / self.width - self.drop * e * f
+        return jnp.where(ok, 10.0 ** ls, 0.0)
+
+    def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None):
+        return self.sensitivity(f, e, v)
+
+
+TRUE = dict(gain=150.0, f_peak=3.0, width=0.9, drop=0.02)
+
+
+def simulate(seed=0, n=800, noise=0.01, n_datasets=2, mult=None, model=None):
+    """Thresholds of ``model`` (default ToyCSF(**TRUE)) with log10 Gaussian noise of s.d. ``noise``."""
+    rng = np.random.default_rng(seed)
+    model = model or ToyCSF(**TRUE)
+    f = 10 ** rng.uniform(-0.5, 1.2, n)
+    e = np.where(rng.uniform(size=n) < 0.5, 0.0, rng.uniform(0, 10, n))
+    ds = np.array([f"d{i % n_datasets}" for i in range(n)])
+    with jax.enable_x64(True):
+        ls = np.log10(np.asarray(model.stimulus_sensitivity(f, e), np.float64))
+    if mult is not None:
+        ls = ls + np.log10(np.asarray(mult))[np.arange(n) % n_datasets]
+    ls = ls + noise * rng.standard_normal(n)
+    return CalibrationData.from_arrays(f, log_threshold=-ls, e=e, dataset=ds, luminance=50.0, area=2.0)
+
+
+# ------------------------------------------------------------------------------ least squares
 
 START = ToyCSF(gain=80.0, f_peak=6.0, width=2.0, drop=0.06)
 NAMES = ["gain", "f_peak", "width", "drop"]
@@ -153,6 +204,8 @@ def test_bad_arguments_raise_clear_errors(clean):
         optim.fit_least_squares(ToyCSF(drop=-0.5), clean)
     with pytest.raises(ValueError, match="cannot determine"):
         optim.fit_least_squares(START, clean.subset(np.arange(3)))
+    with pytest.raises(ValueError, match="rows must be"):
+        optim.fit_least_squares(START, clean, rows="most")
     with pytest.raises(ValueError, match="CalibrationData"):
         optim.fit_least_squares(START, {"f": [1.0]})
     with pytest.raises(ValueError, match="no rows"):

@@ -141,3 +141,45 @@ def test_kelly_abstract_closed_form_by_hand(x64):
     # distance: alpha(k) = (k + 0.29 e) / (theta f0)
     k = float(m.imperceptible_distance(1.0, 0.5, 2.0))
     assert k == pytest.approx(a * 0.5 * 2.0 - 0.29 * 2.0, rel=1e-12)
+
+
+class _BumpCSF(CSFModel):
+    """Falling in f, visible only near eccentricity e0 (a Gaussian bump in ln S): narrow windows in k."""
+
+    s0: jax.Array
+    bump: jax.Array
+    inputs = ("f", "e")
+
+    def __init__(self, s0=0.5, bump=3.0):
+        self.s0, self.bump = jnp.asarray(s0), jnp.asarray(bump)
+
+    def log_sensitivity(self, f, e=0.0, v=0.0):
+        f, e = jnp.asarray(f), jnp.asarray(e)
+        out = jnp.log(self.s0) - f / 10.0 + self.bump * jnp.exp(-(((e - 5.0) / 0.1) ** 2))
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        return jnp.exp(self.log_sensitivity(f, e, v))
+
+
+def test_generic_distance_finds_narrow_window(x64):
+    """A perceptible window ~8-9 % wide in k (e / k within the bump) above nothing else perceptible:
+    the 257-point scan (7.5 % steps) finds it exactly; a 65-point scan (the former default) misses it."""
+    from pmetric._inverse import largest_crossing
+
+    m = _BumpCSF()
+    c, theta, e = np.array([0.6, 0.8, 1.0]), np.array([0.1, 0.2, 0.05]), np.array([5.0, 4.0, 6.0])
+    k = np.asarray(m.imperceptible_distance(c, theta, e))
+    kk = np.geomspace(0.1, 10.0, 200001)[:, None]
+    p = np.asarray(m.is_perceptible(c, kk / (2 * theta), e / kk))
+    lo, hi = np.where(p, kk, np.inf).min(0), np.where(p, kk, 0.0).max(0)
+    assert ((hi / lo > 1.07) & (hi / lo < 1.10)).all(), hi / lo  # narrow windows
+    np.testing.assert_allclose(k, hi, rtol=5e-5)  # brute-force grid resolution
+    ks = k * (1 + 1e-9)
+    assert not np.asarray(m.is_perceptible(c, ks / (2 * theta), e / ks)).any()
+    ks = k * (1 - 1e-9)
+    assert np.asarray(m.is_perceptible(c, ks / (2 * theta), e / ks)).all()
+    # the former 65-point scan misses at least one of them
+    g = lambda w: m._distance_margin(jnp.exp(w), c, theta, e, 0.0)  # noqa: E731
+    _, found65, _ = largest_crossing(g, jnp.log(2 * theta * 1e-4), jnp.log(2 * theta * 1e4), n_grid=65)
+    assert not np.asarray(found65).all()

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _fit_toy import TRUE, ToyCSF, simulate  # noqa: E402
+from test_fit import TRUE, ToyCSF, simulate  # noqa: E402  (the small model shared with test_fit)
 
 import optim  # noqa: E402
 from optim import _fit, _mcmc  # noqa: E402

@@ -1,0 +1,250 @@
+"""Reddy's acuity model (seed 000 Eq 4-5): the printed pieces, the smooth variant, the distance key."""
+
+import math
+
+import equinox as eqx
+import jax.flatten_util  # noqa: F401
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import pmetric as pm
+
+
+def _g_printed(v):
+    """Seed 000 Eq 4, G(v) exactly as printed (three pieces)."""
+    v = np.asarray(v, float)
+    return np.where(v <= 0.825, 60.0, np.where(v <= 118.3, 57.69 - 27.78 * np.log10(np.maximum(v, 1e-300)), 0.1))
+
+
+def _m_printed(e):
+    e = np.asarray(e, float)
+    return np.where(e <= 5.79, 1.0, 7.49 / (0.3 * e + 1.0) ** 2)
+
+
+with jax.enable_x64(True):
+    EXACT = pm.ReddyAcuity()
+    CAPPED = pm.ReddyAcuity(xi=30.0)
+    SMOOTH = pm.SmoothReddyAcuity()
+    SMOOTH_CAPPED = pm.SmoothReddyAcuity(xi=30.0)
+MODELS = {"exact": EXACT, "capped": CAPPED, "smooth": SMOOTH, "smooth_capped": SMOOTH_CAPPED}
+
+_acuity = jax.jit(lambda m, v, e: m.acuity(v, e))
+_perc = jax.jit(lambda m, c, f, e, v: m.is_perceptible(c, f, e, v))
+_dist = jax.jit(lambda m, c, t, e, v: m.imperceptible_distance(c, t, e, v))
+
+
+def test_printed_pieces_and_knots(x64):
+    v = np.concatenate([[0.0, 0.1, 0.5, 0.825], np.geomspace(0.826, 118.2, 200), [118.31, 200.0, 1e4]])
+    e = np.concatenate([[0.0, 1.0, 5.79], np.geomspace(5.8, 200.0, 100)])
+    h = np.asarray(_acuity(EXACT, v[:, None], e[None, :]))
+    ref = _g_printed(v)[:, None] * _m_printed(e)[None, :]
+    # the printed knots are rounded: the continuous form (G = clip(57.69 - 27.78 log10 v, 0.1, 60))
+    # differs from the printed one by < 0.2 %, except just above 118.3 deg/s where the printed G
+    # jumps from 0.1026 to 0.1 and the continuous one reaches 0.1 at v_f = 10^(57.59 / 27.78)
+    v_f = 10 ** ((57.69 - 0.1) / 27.78)
+    assert v_f == pytest.approx(118.3, rel=1e-2)
+    band = (v > 118.3) & (v < v_f)
+    np.testing.assert_allclose(h[~band], ref[~band], rtol=2e-3)
+    np.testing.assert_allclose(h[band], ref[band], rtol=3e-2)
+    g = np.asarray(_acuity(EXACT, v, 0.0))
+    assert g[v <= 0.825] == pytest.approx(60.0, rel=1e-14)  # G(v <= 0.825) = 60
+    assert g[v >= v_f] == pytest.approx(0.1, rel=1e-12)  # G above the floor knot = 0.1
+    assert g[v > 118.3] == pytest.approx(0.1, rel=3e-2)
+    mid = (v > 0.83) & (v < 118.0)
+    np.testing.assert_allclose(g[mid], 57.69 - 27.78 * np.log10(v[mid]), rtol=1e-12)
+    m = np.asarray(_acuity(EXACT, 0.0, e)) / 60.0
+    assert m[e <= 5.78] == pytest.approx(1.0, rel=1e-14)  # M(e <= 5.79) = 1
+    np.testing.assert_allclose(m[e > 5.8], 7.49 / (0.3 * e[e > 5.8] + 1) ** 2, rtol=1e-12)
+    # the pieces meet at the knots (to the rounding of the printed constants)
+    assert 57.69 - 27.78 * math.log10(0.825) == pytest.approx(60.0, rel=2e-4)
+    assert 57.69 - 27.78 * math.log10(118.3) == pytest.approx(0.1, abs=3e-3)
+    assert 7.49 / (0.3 * 5.79 + 1) ** 2 == pytest.approx(1.0, rel=2e-4)
+    # Eq 5: the display cap, H' = min(xi, G M)
+    hc = np.asarray(_acuity(CAPPED, v[:, None], e[None, :]))
+    np.testing.assert_allclose(hc, np.minimum(30.0, h), rtol=1e-12)
+
+
+def test_feature_imperceptible_when_half_period_exceeds_acuity(x64):
+    """Seed 000: a feature of angular size s is imperceptible when 1 / (2 s) > H'."""
+    s = np.geomspace(1e-3, 10.0, 61)[:, None]
+    v = np.array([0.0, 5.0, 50.0, 500.0])[None, :]
+    for m in (EXACT, CAPPED):
+        h = np.asarray(_acuity(m, v, 10.0))
+        p = np.asarray(_perc(m, 1.0, 1.0 / (2 * s), 10.0, v))
+        np.testing.assert_array_equal(p, ~(1.0 / (2 * s) > h))
+        assert not np.asarray(_perc(m, 0.0, 1e-3, 10.0, v)).any()  # zero contrast never visible
+    # a 1-arcmin feature (f = 30 c/deg) is visible in the fovea at rest, not at 10 deg eccentricity
+    assert bool(EXACT.is_perceptible(1.0, 30.0)) and not bool(EXACT.is_perceptible(1.0, 30.0, e=10.0))
+
+
+def test_smooth_within_one_percent_everywhere(x64):
+    v = np.concatenate([[0.0], np.geomspace(1e-3, 1e6, 400)])[:, None]
+    e = np.concatenate([[0.0], np.geomspace(1e-3, 1e4, 300)])[None, :]
+    for ex, sm in ((EXACT, SMOOTH), (CAPPED, SMOOTH_CAPPED)):
+        r = np.asarray(_acuity(sm, v, e)) / np.asarray(_acuity(ex, v, e))
+        assert np.abs(r - 1).max() < 0.01, np.abs(r - 1).max()
+
+
+_KK = np.geomspace(1e-6, 1e4, 6001)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    name=st.sampled_from(list(MODELS)),
+    c=st.sampled_from([0.0, 1e-3, 1.0]) | st.floats(0.0, 1.0),
+    theta=st.floats(1e-3, 5.0),
+    e=st.sampled_from([0.0, 5.79, 40.0]) | st.floats(0.0, 500.0),
+    v=st.sampled_from([0.0, 0.825, 118.3]) | st.floats(0.0, 1e5),
+)
+def test_distance_definition_brute_force(name, c, theta, e, v):
+    """The largest perceptible k of a dense k grid lies at or just below the answer."""
+    m = MODELS[name]
+    with jax.enable_x64(True):
+        k = float(_dist(m, c, theta, e, v))
+        kk = np.concatenate([_KK, k * (1 + np.geomspace(1e-7, 1.0, 500))]) if k > 0 else _KK
+        p = np.asarray(_perc(m, c, kk / (2 * theta), e / kk, v / kk))
+        assert not p[kk > k * (1 + 1e-7)].any(), (k, kk[p].max())
+        if k > 0:
+            ks = k * (1 - 1e-7)
+            assert bool(_perc(m, c, ks / (2 * theta), e / ks, v / ks)), k
+            # the grid finds nothing perceptible more than one grid step (0.4 %) below either
+            assert kk[p].max() >= k * (1 - 4e-3)
+        else:
+            assert not p.any() or c == 0.0
+
+
+def test_exact_distance_vectorized_vs_brute_force(dtype):
+    """Many cases at once (incl. knots, v = 0, e = 0, c = 0, c = 1) against a dense grid, f32 and f64."""
+    rng = np.random.default_rng(3)
+    n = 600
+    c = np.concatenate([[0.0, 1.0, 1.0, 1.0, 1.0], rng.uniform(0, 1, n - 5)])
+    theta = np.exp(rng.uniform(np.log(1e-3), np.log(5.0), n))
+    e = np.where(rng.uniform(size=n) < 0.2, 0.0, np.exp(rng.uniform(np.log(0.01), np.log(500.0), n)))
+    v = np.where(rng.uniform(size=n) < 0.2, 0.0, np.exp(rng.uniform(np.log(0.01), np.log(1e5), n)))
+    e[1:5], v[1:5] = [5.79, 0.0, 5.79, 100.0], [0.825, 118.3, 0.0, 0.825]
+    dt = np.dtype(dtype)
+    args = [jnp.asarray(x, dt) for x in (c, theta, e, v)]
+    kk = np.geomspace(1e-6, 1e4, 4001)[:, None]
+    rtol = 1e-4 if dtype == "float32" else 1e-9
+    # m_scale < 4: M's outer piece is no longer increasing in k, so answers fall inside it too
+    flat_m = pm.ReddyAcuity(m_scale=2.0, m_rate=0.1)
+    for m in (pm.ReddyAcuity(), pm.ReddyAcuity(xi=30.0), flat_m, pm.ReddyAcuity(xi=20.0, m_scale=2.0, m_rate=0.1)):
+        k = np.asarray(_dist(m, *args))
+        assert k.dtype == dt
+        p = np.asarray(_perc(m, c, kk / (2 * theta), e / kk, v / kk))
+        kb = np.where(p.any(0), np.where(p, kk, 0.0).max(0), 0.0)
+        assert ((k > 0) == (kb > 0)).all()
+        pos = kb > 0
+        np.testing.assert_allclose(k[pos], kb[pos], rtol=6e-3)  # one grid step (ln 1e10 / 4000)
+        # exactness: perceptible just below k, imperceptible just above (in float64)
+        ks = np.where(pos, k.astype(float), 1.0)
+        for fac, want in ((1 - rtol, True), (1 + rtol, False)):
+            kf = ks * fac
+            pp = np.asarray(_perc(m, c, kf / (2 * theta), e / kf, v / kf))
+            assert (pp[pos] == want).all(), (fac, np.where(pp[pos] != want))
+
+
+def test_distance_hand_cases(x64):
+    # fovea, at rest: k = 2 theta 60; with the cap xi = 30: 2 theta 30
+    assert float(EXACT.imperceptible_distance(0.5, 0.1)) == pytest.approx(12.0, rel=1e-12)
+    assert float(CAPPED.imperceptible_distance(0.5, 0.1)) == pytest.approx(6.0, rel=1e-12)
+    # v = 0: in M's outer piece (e/k > 5.79) 2 theta G M / k grows with k (M ~ k^2), so the answer is
+    # 2 theta 60 when e / (2 theta 60) <= 5.79 and 0 (invisible at every distance) otherwise
+    e_knot = (math.sqrt(7.49) - 1) / 0.3  # 5.789..., where the printed M's pieces meet
+    assert float(EXACT.imperceptible_distance(1.0, 0.05, 6.0 * e_knot * 0.999)) == pytest.approx(6.0, rel=1e-12)
+    assert float(EXACT.imperceptible_distance(1.0, 0.05, 6.0 * e_knot * 1.001)) == 0.0
+    # v > 0, e = 0, answer on G's middle piece: k = 2 theta (57.69 - 27.78 log10(v / k))
+    th, v = 0.2, 100.0
+    k = float(EXACT.imperceptible_distance(1.0, th, 0.0, v))
+    assert k == pytest.approx(2 * th * (57.69 - 27.78 * math.log10(v / k)), rel=1e-12)
+    assert 0.825 < v / k < 118.3
+    # zero contrast or zero size: 0
+    assert float(EXACT.imperceptible_distance(0.0, 1.0, 3.0, 3.0)) == 0.0
+    assert float(EXACT.imperceptible_distance(1.0, 0.0, 3.0, 3.0)) == 0.0
+
+
+def _dist_sum(m, c, t, e, v):
+    return m.imperceptible_distance(c, t, e, v).sum()
+
+
+_dist_grad = jax.jit(jax.grad(_dist_sum, argnums=(0, 1, 2, 3, 4)))
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_gradients_match_finite_differences(name, x64):
+    """Three regimes at once (vectorized): G middle x M outer, G middle x M = 1, G = 60 x M = 1."""
+    import jax.flatten_util  # noqa: F401
+
+    m = MODELS[name]
+    x0 = [np.array(a) for a in ((0.3, 0.3, 0.3), (0.2, 0.2, 0.05), (30.0, 0.5, 2.0), (20.0, 50.0, 0.0))]
+    grads = _dist_grad(m, *x0)
+    for i in range(4):  # inputs, elementwise
+        h = 1e-6 * np.maximum(np.abs(x0[i]), 1.0)
+        xp, xm = list(x0), list(x0)
+        xp[i], xm[i] = x0[i] + h, x0[i] - h
+        fd = (np.asarray(_dist(m, *xp)) - np.asarray(_dist(m, *xm))) / (2 * h)
+        np.testing.assert_allclose(np.asarray(grads[i + 1]), fd, rtol=1e-4, atol=1e-7)
+    flat, unravel = jax.flatten_util.ravel_pytree(m)  # constants: the three cases summed
+    gflat, _ = jax.flatten_util.ravel_pytree(grads[0])
+    for j in range(flat.size):
+        h = 1e-6 * max(abs(float(flat[j])), 1.0)
+        fp = float(np.asarray(_dist(unravel(flat.at[j].add(h)), *x0)).sum())
+        fm = float(np.asarray(_dist(unravel(flat.at[j].add(-h)), *x0)).sum())
+        assert float(gflat[j]) == pytest.approx((fp - fm) / (2 * h), rel=1e-4, abs=1e-7), j
+    # the acuity surface itself
+    va, ea = np.array([1.0, 21.0, 51.0]), np.array([31.0, 1.5, 3.0])
+    ga = jax.vmap(jax.grad(lambda v, e: m.log_acuity(v, e), argnums=(0, 1)))(va, ea)
+    for i, (dv, de) in enumerate(((1e-6, 0.0), (0.0, 1e-6))):
+        fd = (np.asarray(m.log_acuity(va + dv, ea + de)) - np.asarray(m.log_acuity(va - dv, ea - de))) / 2e-6
+        np.testing.assert_allclose(np.asarray(ga[i]), fd, rtol=1e-5, atol=1e-9)
+
+
+def _all_fns(m, c, t, e, v):
+    return (m.imperceptible_distance(c, t, e, v), m.log_acuity(v, e), m.threshold_frequency(c, e, v))
+
+
+_all_jit = jax.jit(_all_fns)
+_all_grad = jax.jit(jax.grad(lambda *a: sum(x.sum() for x in _all_fns(*a)), argnums=(1, 2, 3, 4)))
+
+
+def test_finite_values_and_gradients_on_dense_grid(dtype):
+    dt = jnp.dtype(dtype)
+    th = jnp.asarray(np.concatenate([[0.0], np.geomspace(1e-4, 10.0, 9)]), dt)[:, None, None, None]
+    e = jnp.asarray([0.0, 1.0, 5.79, 30.0, 1e4], dt)[None, :, None, None]
+    v = jnp.asarray([0.0, 0.05, 0.825, 118.3, 1e6], dt)[None, None, :, None]
+    c = jnp.asarray([0.0, 1e-3, 1.0], dt)[None, None, None, :]
+    for m in (pm.ReddyAcuity(), pm.ReddyAcuity(xi=30.0), pm.SmoothReddyAcuity(), pm.SmoothReddyAcuity(xi=30.0)):
+        for val in _all_jit(m, c, th, e, v):
+            assert val.dtype == dt and np.isfinite(np.asarray(val)).all()
+        for g in _all_grad(m, c, th, e, v):
+            assert g.dtype == dt and np.isfinite(np.asarray(g)).all()
+        p = m.is_perceptible(c, th, e, v)
+        assert p.dtype == jnp.bool_ and p.shape == (10, 5, 5, 3)
+
+
+def test_model_built_under_x64_runs_in_float32():
+    # EXACT was built under x64 (float64 fields); float32 inputs must give float32 without warnings
+    with jax.enable_x64(False):
+        k = EXACT.imperceptible_distance(jnp.float32(0.5), jnp.float32(0.1), jnp.float32(10.0), jnp.float32(5.0))
+        assert k.dtype == jnp.float32 and np.isfinite(float(k))
+        assert EXACT.acuity(1.0, 1.0).dtype == jnp.float32
+
+
+def test_bad_input_raises():
+    m = pm.ReddyAcuity()
+    with pytest.raises(ValueError, match="v must be >= 0"):
+        m.acuity(-1.0, 0.0)
+    with pytest.raises(ValueError, match="e contains NaN"):
+        m.acuity(0.0, np.nan)
+    with pytest.raises(ValueError, match="theta"):
+        m.imperceptible_distance(0.5, -1.0)
+    with pytest.raises(ValueError, match="do not broadcast"):
+        m.imperceptible_distance(np.ones(3), np.ones(4))
+    with pytest.raises(ValueError, match="xi must be > 0"):
+        pm.ReddyAcuity(xi=0.0)
+    with pytest.raises(ValueError, match="g_slope must be finite"):
+        pm.ReddyAcuity(g_slope=np.inf)
