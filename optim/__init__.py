@@ -10,5 +10,5 @@ from ._mesh import MeshReport, bumpy_sphere, grid_mesh, icosphere, load_mesh, sa
 from ._tree import Lighting, VertexTree, build_tree, load_tree, mesh_hash, normal_cell_directions, normal_cells, vertex_luminance
 from ._cut import Cut, budget_cut, budget_cut_heap, extract, repair_monotone, threshold_cut
 from ._view import View
-from ._score import NodeTerms, ScoringContext, imperceptible_cut, node_terms, score, scoring_context
+from ._score import NodeTerms, ScoringContext, imperceptible_cut, node_terms, score, scoring_context, default_model
 from ._mcmc import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc

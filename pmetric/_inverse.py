@@ -158,7 +158,11 @@ def implicit_root(g: Callable, x_star, mask=None):
     """
     x_star = lax.stop_gradient(x_star)
     gx, dg = jax.jvp(g, (x_star,), (jnp.ones_like(x_star),))
-    corr = safe_div(gx - lax.stop_gradient(gx), lax.stop_gradient(dg))
-    if mask is not None:
-        corr = jnp.where(mask, corr, 0.0)
-    return x_star - corr
+    dg = lax.stop_gradient(dg)
+    floor = jnp.sqrt(jnp.finfo(dg.dtype).tiny)  # 1/floor^2 stays finite: no 0 * inf in any rule
+    dg = jnp.where(jnp.abs(dg) > floor, dg, jnp.where(dg < 0, -floor, floor))
+    num = gx - lax.stop_gradient(gx)
+    if mask is not None:  # masked out: 0 / 1, so no NaN leaks into the gradient (double where)
+        num = jnp.where(mask, num, 0.0)
+        dg = jnp.where(mask, dg, 1.0)
+    return x_star - num / dg
