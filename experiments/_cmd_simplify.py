@@ -56,6 +56,10 @@ def register(sub) -> None:
     p.add_argument("--method", choices=("qem", "octree"), default="qem", help="vertex tree builder (default qem)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
+    p.add_argument("--render", metavar="OUT.png", default=None,
+                   help="render original and simplified for this view, with their FLIP difference, to a PNG")
+    p.add_argument("--render-size", metavar="W,H", default="960,540",
+                   help="rendering size in pixels for --render (default 960,540; FLIP's px/deg is scaled to it)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
@@ -239,7 +243,15 @@ def simplify(args) -> dict:
             raise _error(f"--out: cannot write {what!r}; use .ply, .obj, .off, .stl or .glb")
         if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
             raise _error(f"--out {str(out)!r} is the input mesh; choose another output path")
-    model = load_model_arg(args.model) if args.metric == "perceptual" else None
+    model = load_model_arg(args.model)
+    render_path = Path(args.render) if args.render else None
+    render_size = None
+    if render_path is not None:
+        if render_path.suffix.lower() != ".png":
+            raise _error(f"--render: the picture is written as PNG; use a .png path, got {str(render_path)!r}")
+        render_size = tuple(int(x) for x in _vector("--render-size", args.render_size, 2))
+        if min(render_size) <= 0 or max(render_size) > 8192:
+            raise _error(f"--render-size must be two integers in 1..8192, got {args.render_size!r}")
 
     t = {}
     if not mesh_path.is_file():
@@ -268,6 +280,23 @@ def simplify(args) -> dict:
         optim.save_mesh(out, v2, f2, c2, protect=(mesh_path,))
         t["save"] = time.perf_counter() - t0
     perceptual = args.metric == "perceptual"
+    # Whatever keys chose the cut, report the perceptual distance beyond which it is imperceptible
+    # (seed 004 section 5.3): the largest perceptual key among folded nodes (keys are monotone).
+    pkeys = keys if perceptual else optim.score(tree, view, model, "perceptual")
+    folded = ~cut.unfolded
+    distance = float(pkeys[folded].max()) if folded.any() else 0.0
+    rendered = None
+    if render_path is not None:
+        from experiments import render as R
+
+        t0 = time.perf_counter()
+        comp = R.compare(tree, (v2, f2, c2), view, size=render_size)
+        R.save_comparison(render_path, comp, protect=(mesh_path,), titles=(
+            f"original: {tree.n_triangles:,} triangles",
+            f"{args.metric} keys: {f2.shape[0]:,} triangles (invisible beyond {distance:.3g}x)"))
+        t["render"] = time.perf_counter() - t0
+        rendered = {"path": str(render_path), "mean_flip": comp.mean_flip,
+                    "pixels_per_degree": comp.pixels_per_degree}
     return {
         "mesh": str(mesh_path),
         "input_triangles": int(tree.n_triangles),
@@ -276,13 +305,14 @@ def simplify(args) -> dict:
         "metric": args.metric,
         "model": type(model).__name__ if model is not None else None,
         "budget": budget,
-        "imperceptible_distance": float(cut.distance) if perceptual else None,
+        "imperceptible_distance": distance,
         "boundary_key": float(cut.distance),
         "boundary_key_units": "viewing-distance multiple" if perceptual else "pixels",
         "stop_reason": cut.stop_reason,
         "tree_method": args.method,
         "tree_cache": cache,
         "out": str(out) if out is not None else None,
+        "render": rendered,
         "timings_ms": {k: round(v * 1e3, 3) for k, v in t.items()},
     }
 
@@ -300,13 +330,14 @@ def run(args) -> int:
     table.add_column("value", justify="right")
     table.add_row("triangles", f"{res['input_triangles']:,} -> {res['output_triangles']:,}")
     table.add_row("metric / stop", f"{res['metric']} / {res['stop_reason']}")
-    if res["imperceptible_distance"] is not None:
-        table.add_row("imperceptible beyond", f"{res['imperceptible_distance']:.3g} x the viewing distance")
-    else:
+    table.add_row("imperceptible beyond", f"{res['imperceptible_distance']:.3g} x the viewing distance")
+    if res["metric"] != "perceptual":
         table.add_row("boundary key", f"{res['boundary_key']:.3g} px")
     table.add_row("tree", f"{res['tree_method']} (cache {res['tree_cache']})")
     table.add_row("time (ms)", ", ".join(f"{k} {v:.1f}" for k, v in res["timings_ms"].items()))
     if res["out"]:
         table.add_row("written", res["out"])
+    if res["render"]:
+        table.add_row("rendered", f"{res['render']['path']} (mean FLIP {res['render']['mean_flip']:.4f})")
     Console().print(table)
     return 0

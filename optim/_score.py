@@ -65,6 +65,8 @@ _MARGINS_DEG = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 90.0)
 _DIR_BINS = 16
 #: internal nodes per chunk of the per-view programs (1 MiB float32 columns)
 _CHUNK = 262144
+#: child-group sizes up to this use fixed-arity gathers in the max propagation (else reduceat)
+_MAX_ARITY = 8
 
 
 # =============================================================================== stage 0: normal cube
@@ -227,6 +229,24 @@ class _TreePasses:
             start = np.flatnonzero(np.r_[True, p[1:] != p[:-1]]) if b > a else np.zeros(0, np.int64)
             self.groups.append((p[start], start))
         self.sorted_nodes = bool(np.all(np.diff(node) > 0))
+        # fixed-arity form of the same groups (``monotone``): per level, the parents' positions and
+        # (A, P) child positions, short groups padded with their first child (max is idempotent).
+        # ``np.maximum.reduceat`` pays a per-group overhead that dominates on binary trees.
+        self.slots = [None]
+        for k in range(1, len(levels) - 1):
+            pids, starts = self.groups[k]
+            if not len(pids):
+                self.slots.append(None)
+                continue
+            a, b = levels[k], levels[k + 1]
+            cnt = np.diff(np.r_[starts, b - a])
+            arity = int(cnt.max())
+            if arity > _MAX_ARITY:
+                self.slots.append(None)  # reduceat for this level
+                continue
+            pos = a + starts
+            sl = np.stack([pos + np.minimum(j, cnt - 1) for j in range(arity)]).astype(np.intp)
+            self.slots.append((pids.astype(np.intp), sl))
 
     def propagate_culled(self, culled: np.ndarray) -> np.ndarray:
         """A culled node culls its whole subtree (top down, one gather per level)."""
@@ -238,7 +258,27 @@ class _TreePasses:
         return c
 
     def monotone(self, key: np.ndarray) -> np.ndarray:
-        """key[parent] = max(key[parent], max key[children]), deepest level first (seed 004 footnote 2)."""
+        """key[parent] = max(key[parent], max key[children]), deepest level first (seed 004 footnote 2).
+
+        In place; identical to :meth:`monotone_reduceat` (max is exact), with one gather per child slot."""
+        lv = self.levels
+        for k in range(len(lv) - 2, 0, -1):
+            sl = self.slots[k]
+            if sl is None:
+                pids, starts = self.groups[k]
+                if len(pids):
+                    sub = key[lv[k]:lv[k + 1]]
+                    key[pids] = np.maximum(key[pids], np.maximum.reduceat(sub, starts))
+                continue
+            pids, child = sl
+            m = key.take(pids)
+            for row in child:
+                np.maximum(m, key.take(row), out=m)
+            key[pids] = m
+        return key
+
+    def monotone_reduceat(self, key: np.ndarray) -> np.ndarray:
+        """Reference form of :meth:`monotone`: ``np.maximum.reduceat`` over each level's child groups."""
         lv = self.levels
         for k in range(len(lv) - 2, 0, -1):
             pids, starts = self.groups[k]
