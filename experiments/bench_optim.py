@@ -19,6 +19,7 @@ Writes the Markdown report itself (atomically).
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -111,7 +112,8 @@ def report(recs, args) -> str:
         "",
         f"Command: {cmd}  ",
         f"Machine: {platform.machine()} {platform.processor() or ''}, Python {platform.python_version()}, "
-        f"numpy {np.__version__}. {args.views} views around each object (framed at 30 deg of a 46 deg screen, "
+        f"numpy {np.__version__}, {os.cpu_count()} cores, load average {args.load} at the start (shared "
+        f"machine). {args.views} views around each object (framed at 30 deg of a 46 deg screen, "
         "gaze at the screen centre, 1 deg gaze error), perceptual keys with the default model "
         f"(`optim._score.default_model`), budget {args.budget_fraction:.0%} of the input triangles, "
         f"tree method `{args.method}`. Best of {args.repeat} runs per view, medians over the views; the "
@@ -163,6 +165,7 @@ def main(argv=None) -> int:
     if args.views < 1 or args.repeat < 1 or not (0 < args.budget_fraction <= 1):
         raise SystemExit("bench_optim: --views and --repeat must be >= 1 and --budget-fraction in (0, 1]")
     con = Console()
+    args.load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     meshes = []
     args.skipped = ""
     if args.quick:

@@ -35,6 +35,12 @@ inside scalar gather loops and measured about 1.5-2x slower.
 7. ``monotone``: maximum propagated from the deepest level up, and culling propagated down (two
    O(N) numpy passes over the breadth-first levels, ``np.maximum.reduceat`` per level).
 
+Table mode (perceptual keys without motion, the default) runs one XLA program per chunk
+(``_split_terms``: table-word positions, key-table indices for the front-facing and silhouette
+contrasts, theta, frustum cull) and does both table gathers in numpy (``_fast_table_keys``): XLA:CPU
+fuses index arithmetic into gather loops as scalar code. Chunks are padded to a multiple of 1024 nodes
+(odd lengths ran ~6x slower per node). The max propagation uses one gather per child slot.
+
 Per-tree device arrays (breadth-first order, compacted normal masks) are built once:
 :func:`scoring_context` caches them on the tree. Speed (2-core CPU, 796k-triangle mesh, 398k internal
 nodes): about 20-30 ms per view; see ``reports/bench_optim.md``.
@@ -67,6 +73,8 @@ _DIR_BINS = 16
 _CHUNK = 262144
 #: child-group sizes up to this use fixed-arity gathers in the max propagation (else reduceat)
 _MAX_ARITY = 8
+#: chunk lengths are padded to a multiple of this many nodes (vectorised XLA loops)
+_PAD = 1024
 
 
 # =============================================================================== stage 0: normal cube
@@ -384,13 +392,20 @@ def scoring_context(tree) -> ScoringContext:
     cols = dict(cx=center[:, 0], cy=center[:, 1], cz=center[:, 2], radius=np.asarray(tree.radius)[node],
                 lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(tree.fold_delta)[node],
                 geom_error=np.asarray(tree.geom_error)[node])
-    chunks = []
+    chunks, sizes = [], []
     for a in range(0, m, _CHUNK):
         sl = slice(a, min(a + _CHUNK, m))
-        mk = mask[sl]
-        chunks.append(_Chunk(**{k: jnp.asarray(np.ascontiguousarray(v[sl], np.float32)) for k, v in cols.items()},
+        size = sl.stop - a
+        # pad to a multiple of _PAD with zero nodes (empty masks): on a length that is not a multiple
+        # of the vector width XLA:CPU emitted scalar loops, measured ~6x slower per node
+        pad = -size % _PAD
+        padf = lambda v: np.concatenate([v, np.zeros((pad,) + v.shape[1:], v.dtype)]) if pad else v  # noqa: E731
+        mk = padf(mask[sl])
+        chunks.append(_Chunk(**{k: jnp.asarray(np.ascontiguousarray(padf(v[sl]), np.float32)) for k, v in cols.items()},
                              **_compact_masks(mk), nonempty=jnp.asarray((mk != 0).any(1))))
+        sizes.append(size)
     ctx = ScoringContext(chunks, passes, m, (float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1))))
+    ctx.sizes = tuple(sizes)
     try:
         object.__setattr__(tree, "_plod_scoring_context", ctx)
     except (AttributeError, TypeError):
@@ -504,13 +519,8 @@ def _project(cx, cy, cz, eye, rot):
     return (dx, dy, dz), x, y, depth
 
 
-def _facing_flags(ctx: _Chunk, vp: _ViewParams, table):
-    """(possibly front facing, possibly back facing) (M,) bool: the node's normal mask against the
-    table row of its view direction and angular-radius margin (seed 001 section 4.3).
-
-    ``table`` is (rows * 12, 2) uint32: for each row and mask word, the front and back words side by
-    side, so one gather fetches both. Most masks use at most 2 of their 12 words (``word_idx``); the
-    few wider ones gather whole rows. 'clip' mode avoids XLA's slow checked gather."""
+def _facing_rows(ctx: _Chunk, vp: _ViewParams):
+    """Row of the silhouette table (margin level, view-direction bin) of every node (M,) int32."""
     r = ctx.radius
     (dx, dy, dz), _, _, _ = _project(ctx.cx, ctx.cy, ctx.cz, vp.eye, vp.rot)
     dist = jnp.sqrt(dx * dx + dy * dy + dz * dz)
@@ -518,7 +528,17 @@ def _facing_flags(ctx: _Chunk, vp: _ViewParams, table):
     margins = np.sin(np.radians(_MARGINS_DEG[:-1])).astype(np.float32)
     level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
     level = jnp.where(dist <= r, len(_MARGINS_DEG) - 1, level)
-    row = level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz)
+    return level * (6 * _DIR_BINS * _DIR_BINS) + _dir_bin(-dx, -dy, -dz)
+
+
+def _facing_flags(ctx: _Chunk, vp: _ViewParams, table):
+    """(possibly front facing, possibly back facing) (M,) bool: the node's normal mask against the
+    table row of its view direction and angular-radius margin (seed 001 section 4.3).
+
+    ``table`` is (rows * 12, 2) uint32: for each row and mask word, the front and back words side by
+    side, so one gather fetches both. Most masks use at most 2 of their 12 words (``word_idx``); the
+    few wider ones gather whole rows. 'clip' mode avoids XLA's slow checked gather."""
+    row = _facing_rows(ctx, vp)
     got = jnp.take(table, row[:, None] * 12 + ctx.word_idx, axis=0, mode="clip")  # (M, 2 words, front/back)
     hit = jnp.any((got & ctx.word_val[:, :, None]) != 0, axis=1)  # (M, 2)
     if ctx.wide.shape[0]:
@@ -637,6 +657,16 @@ def _perceptual_table(model) -> jax.Array:
 
 
 _TABLES: dict = {}
+_KTAB_HOST: dict = {}
+
+
+def _ktab_host(ktab) -> np.ndarray:
+    h = _KTAB_HOST.get(id(ktab))
+    if h is None or h[0] is not ktab:
+        if len(_KTAB_HOST) > 16:
+            _KTAB_HOST.clear()
+        h = _KTAB_HOST[id(ktab)] = (ktab, np.asarray(ktab))
+    return h[1]
 
 
 def _model_table(model):
@@ -702,10 +732,94 @@ def _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion):
     return jnp.maximum(key, 0.0).astype(jnp.float32)
 
 
-def _key_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
+@eqx.filter_jit
+def _split_terms(ctx, vp, has_gaze):
+    """Fast path of the table-mode perceptual key, stages 1-5 in one XLA program without gathers:
+    the silhouette-table word positions (M, 2) int32 of each node, the key-table index for the
+    front-facing contrast and for the silhouette contrast, theta, and the frustum cull flag. The two
+    facing cases are ``_terms`` itself with the facing flags fixed (shared arithmetic is computed
+    once), so the values equal those of ``_key_terms``. The gathers run in numpy
+    (``_fast_table_keys``): XLA:CPU fuses the index arithmetic into its gather loops as scalar code
+    (measured ~8x slower than numpy's take on the same indices)."""
+    widx = _facing_rows(ctx, vp)[:, None] * 12 + ctx.word_idx
+    yes = jnp.ones(ctx.radius.shape, bool)
+    t_own = _terms(ctx, vp, None, has_gaze, False, "perceptual", (yes, ~yes))
+    t_sil = _terms(ctx, vp, None, has_gaze, False, "perceptual", (yes, yes))
+    return (widx, _table_index_impl(t_own.contrast, t_own.theta, t_own.ecc),
+            _table_index_impl(t_sil.contrast, t_sil.theta, t_sil.ecc), t_own.theta, t_own.culled)
+
+
+class _HostMasks(NamedTuple):
+    """numpy copies of a chunk's compacted normal masks for the fast path: ``val`` (C, 2) uint64 (the
+    word repeated in both halves), ``wide`` (W,) positions, ``wide_val`` (W, 12) uint64, ``nonempty``."""
+
+    val: np.ndarray
+    wide: np.ndarray
+    wide_val: np.ndarray
+    nonempty: np.ndarray
+
+
+def _host_masks(ctx) -> list:
+    """Per chunk :class:`_HostMasks`, cached on the context (not on the chunk: an attribute added
+    to the eqx.Module changed its jit cache key and recompiled the programs)."""
+    hms = getattr(ctx, "host_masks", None)
+    if hms is None:
+        dbl = lambda w: (lambda u: u | (u << np.uint64(32)))(np.asarray(w).astype(np.uint64))  # noqa: E731
+        hms = ctx.host_masks = [_HostMasks(dbl(ch.word_val), np.asarray(ch.wide).astype(np.intp),
+                                           dbl(ch.wide_mask), np.asarray(ch.nonempty)) for ch in ctx.chunks]
+    return hms
+
+
+def _table_host():
+    """The silhouette table as numpy (rows * 12,) uint64: front word in the low, back word in the high half."""
+    return np.ascontiguousarray(np.asarray(_table_device())).view(np.uint64).ravel()
+
+
+def _fast_table_keys(ctx, vp, ktab_host, has_gaze):
+    """Raw key (M,) float32 and cull flag (M,) bool, table mode: identical to ``_key_kernel``'s."""
+    table = _table_host_cached()
+    outs = [_split_terms(ch, vp, has_gaze) for ch in ctx.chunks]  # dispatch all chunks first
+    key = np.empty(ctx.m, np.float32)
+    culled = np.empty(ctx.m, bool)
+    a = 0
+    for hm, n, out in zip(_host_masks(ctx), ctx.sizes, outs):
+        widx, i_own, i_sil, theta, outside = (np.asarray(x)[:n] for x in out)
+        m = table.take(widx)
+        m &= hm.val[:n]
+        m = m[:, 0] | m[:, 1]
+        if hm.wide.size:  # (wide masks are never padding)
+            rows = (widx[hm.wide, 0] // 12) * 12
+            mw = table.take(rows[:, None] + np.arange(12)) & hm.wide_val
+            m[hm.wide] = np.bitwise_or.reduce(mw, axis=1)
+        front = (m & np.uint64(0xFFFFFFFF)) != 0
+        sil = front & ((m >> np.uint64(32)) != 0)
+        b = a + n
+        np.logical_or(outside, hm.nonempty[:n] & ~front, out=culled[a:b])
+        idx = np.where(sil, i_sil, i_own)
+        k = theta * ktab_host.take(idx, mode="clip")
+        k[idx < 0] = 0.0
+        key[a:b] = k
+        a = b
+    return key, culled
+
+
+@functools.lru_cache(maxsize=1)
+def _table_host_cached_impl(_key):
+    return _table_host()
+
+
+def _table_host_cached():
+    cell_fn, bit_fn = _cell_layout()
+    return _table_host_cached_impl((id(cell_fn), id(bit_fn)))
+
+
+def _key_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion, fast=True):
     """Raw key (M,) float32 and cull flag (M,) of every internal node (stages 1-6), chunk by chunk
-    (all chunks are dispatched before any result is read)."""
+    (all chunks are dispatched before any result is read). ``fast``: table mode through
+    ``_fast_table_keys`` (same values)."""
     table_mode = metric == "perceptual" and ktab is not None and not has_motion
+    if table_mode and fast:
+        return _fast_table_keys(ctx, vp, _ktab_host(ktab), has_gaze)
     outs = []
     for ch in ctx.chunks:
         culled, terms = _key_terms(ch, vp, _facing_kernel(ch, vp, table), metric, has_gaze, has_motion, table_mode)
@@ -714,9 +828,9 @@ def _key_kernel(ctx, vp, table, model, ktab, metric, has_gaze, has_motion):
         else:
             key = _key_from_terms(model, ktab, terms, metric, has_gaze, has_motion)
         outs.append((key, culled))
-    if len(outs) == 1:
-        return np.asarray(outs[0][0]), np.asarray(outs[0][1])
-    return (np.concatenate([np.asarray(k) for k, _ in outs]), np.concatenate([np.asarray(c) for _, c in outs]))
+    sz = ctx.sizes
+    return (np.concatenate([np.asarray(k)[:n] for (k, _), n in zip(outs, sz)]),
+            np.concatenate([np.asarray(c)[:n] for (_, c), n in zip(outs, sz)]))
 
 
 @eqx.filter_jit
@@ -726,7 +840,8 @@ def _terms_jit(ctx, vp, facing, has_gaze, has_motion):
 
 def _terms_kernel(ctx, vp, table, has_gaze, has_motion):
     parts = [_terms_jit(ch, vp, _facing_kernel(ch, vp, table), has_gaze, has_motion) for ch in ctx.chunks]
-    return _Terms(*(np.concatenate([np.asarray(getattr(p, f)) for p in parts]) for f in _Terms._fields))
+    return _Terms(*(np.concatenate([np.asarray(getattr(p, f))[:n] for p, n in zip(parts, ctx.sizes)])
+                    for f in _Terms._fields))
 
 
 # =============================================================================== public API

@@ -401,8 +401,9 @@ class KellySpatioTemporal(CSFModel):
            ``k >= k_c = max(k_p, kappa theta / b)``: Newton from ``10 v`` descends monotonically onto the
            largest root there (12 steps).
         3. Only where step 2 finds nothing perceptible is ``k < k_c`` searched: a 129-point log grid on
-           ``[2e-4 theta, k_c]`` (one step <= 10 % in k) refined by safeguarded Newton, skipped (lax.cond)
-           when no element of the batch needs it. It can miss a perceptible window narrower than one
+           ``[2e-4 theta, k_c]`` (one step <= 10 % in k) refined by safeguarded Newton, run only on the
+           elements that need it (gathered into a buffer of a quarter of the batch; the whole batch
+           when more need it; skipped when none do). It can miss a perceptible window narrower than one
            grid step lying above every perceptible grid point (as the generic solver).
         Gradients: implicit-function theorem on the fused margin.
         """

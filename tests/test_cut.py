@@ -238,3 +238,23 @@ def test_tetrahedron_exact_counts():
         order = np.lexsort((np.arange(t.n_nodes), -k))
         order = order[t.child_count[order] > 0]
         assert set(counts) <= set(np.concatenate([[0], np.cumsum(t.num_subtris[order])]).tolist())
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_extract_equals_reference_implementation(name, seed):
+    """The cut-proportional extract returns the identical arrays (values and dtypes) as the O(N + V + T)
+    reference, for budget cuts of many sizes; a cut not closed under ancestors falls back to it."""
+    from optim._cut import _extract_reference
+
+    tree = TREES[name]
+    rng = np.random.default_rng(seed)
+    keys = _random_keys(tree, rng, ties=bool(seed % 2))
+    for frac in (0.0, 0.05, 0.3, 0.7, 1.0):
+        cut = optim.budget_cut(tree, keys, int(frac * tree.n_triangles))
+        for a, b in zip(optim.extract(tree, cut), _extract_reference(tree, cut)):
+            assert (a is None and b is None) or (np.array_equal(a, b) and a.dtype == b.dtype)
+    bad = np.zeros(tree.n_nodes, bool)
+    bad[tree.internal[-1]] = True  # an unfolded node whose parent is folded
+    for a, b in zip(optim.extract(tree, bad), _extract_reference(tree, bad)):
+        assert (a is None and b is None) or np.array_equal(a, b)

@@ -244,3 +244,43 @@ def test_bad_input(sphere_tree):
         score(sphere_tree, view, model="KellyAbstract")
     with pytest.raises(ValueError, match="lacks the field"):
         score(object(), view)
+
+
+@pytest.mark.parametrize("gaze", [None, "center", [[300.0, 200.0], [1500.0, 900.0]]])
+def test_fast_table_path_equals_xla_path(sphere_tree, gaze):
+    """The numpy-gather fast path of the table-mode keys gives identical raw keys and cull flags."""
+    from optim import _score as S
+
+    tree = sphere_tree
+    ctx = S.scoring_context(tree)
+    ktab = S._model_table(S.default_model())
+    for az in np.linspace(0, 2 * math.pi, 5, endpoint=False):
+        eye = 3.0 * np.array([math.sin(az), 0.4, math.cos(az)])
+        vp = S._view_params(View(eye=eye, gaze=gaze), ctx)
+        fast = S._key_kernel(ctx, vp, S._table_device(), None, ktab, "perceptual", gaze is not None, False, fast=True)
+        slow = S._key_kernel(ctx, vp, S._table_device(), None, ktab, "perceptual", gaze is not None, False, fast=False)
+        assert np.array_equal(fast[0], slow[0]) and np.array_equal(fast[1], slow[1])
+
+
+def test_monotone_gathers_equal_reduceat(sphere_tree):
+    from optim import _score as S
+
+    tp = S.scoring_context(sphere_tree).passes
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        key = rng.random(len(tp.node)).astype(np.float32)
+        key[rng.random(key.size) < 0.4] = 0.0
+        assert np.array_equal(tp.monotone(key.copy()), tp.monotone_reduceat(key.copy()))
+
+
+def test_padded_chunks_give_the_same_keys(sphere_tree, monkeypatch):
+    """Several chunks of odd lengths (padded internally) give the keys of a single chunk."""
+    from optim import _score as S
+
+    view = View(eye=EYE)
+    want = score(sphere_tree, view)
+    tree = optim.build_tree(sphere_tree.vertices, sphere_tree.faces, method="octree")
+    monkeypatch.setattr(S, "_CHUNK", 77)
+    got = score(tree, view)
+    assert len(S.scoring_context(tree).chunks) > 1
+    assert np.array_equal(got, want)
