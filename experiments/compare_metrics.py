@@ -261,6 +261,8 @@ def run_mesh(spec, cfg, model, progress, task, gl):
     for off in cfg["gaze_offsets_deg"]:
         view = gaze_view(V, off, cfg)
         pkeys = optim.score(tree, view, model, "perceptual")
+        imp = optim.imperceptible_cut(tree, view, model)
+        info.setdefault("imperceptible_triangles", {})[f"{off:g}"] = int(imp.triangles)
         orig = weights = None
         ppd = float(view.display.pixels_per_degree()) * size[0] / view.width
         info["ppd"] = ppd
@@ -323,13 +325,16 @@ def _plt():
     return plt
 
 
-def plot_vs_triangles(records, infos, offsets, field, ylabel, path, methods=METHODS):
+def plot_vs_triangles(records, infos, offsets, field, ylabel, path, methods=METHODS, by_mesh=False):
+    """One panel per mesh and view (``by_mesh``: one per mesh, first view only, in a row)."""
+    from matplotlib.ticker import NullFormatter
+
     plt = _plt()
-    nr, nc = len(infos), len(offsets)
-    fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.0 * nr), squeeze=False)
+    nr, nc = (1, len(infos)) if by_mesh else (len(infos), len(offsets))
+    fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.2 * nr), squeeze=False)
     for i, info in enumerate(infos):
-        for j, off in enumerate(offsets):
-            ax = axes[i, j]
+        for j, off in enumerate(offsets[:1] if by_mesh else offsets):
+            ax = axes[0, i] if by_mesh else axes[i, j]
             for m in methods:
                 rs = sorted((r for r in records if r["mesh"] == info["mesh"] and r["gaze_deg"] == off
                              and r["method"] == m and r[field] is not None), key=lambda r: r["triangles"])
@@ -337,7 +342,8 @@ def plot_vs_triangles(records, infos, offsets, field, ylabel, path, methods=METH
                     ax.plot([r["triangles"] for r in rs], [r[field] for r in rs], "o-", ms=3, color=COLORS[m],
                             label=m)
             ax.set_xscale("log")
-            if field == "distance":
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            if field in ("distance", "wflip"):
                 ax.set_yscale("log")
             ax.set_title(f"{info['mesh']}, gaze {off:g} deg", fontsize=9)
             ax.set_xlabel("triangles", fontsize=8)
@@ -420,11 +426,15 @@ def mesh_table(records, info, offsets, gl_ok):
                 row.append(_f(r["distance"], 2))
                 if gl_ok:
                     for fld in ("flip", "wflip"):
-                        s = _f(r[fld])
+                        s = _f(r[fld]) if fld == "flip" else ("n/a" if r[fld] is None else f"{r[fld]:.3g}")
                         row.append(f"**{s}**" if r[fld] is not None and r[fld] == best[(b, off, fld)] else s)
             row.append(f"{statistics.median(r['ms'] for r in rs.values()):.1f}")
             rows.append(row)
     return _table(header, rows)
+
+
+def _ratios(cells, m):
+    return [c[m]["distance"] / max(c["perceptual"]["distance"], 1e-9) for c in cells.values()]
 
 
 def summary(records, infos, offsets, gl_ok):
@@ -440,8 +450,7 @@ def summary(records, infos, offsets, gl_ok):
     lines.append(f"- **Perceptual distance k**: the perceptual keys give the smallest k in {ok} of {n} "
                  "(mesh, view, budget) cells, as the greedy order guarantees; size / geometric keys need "
                  "a median of "
-                 + ", ".join(f"{statistics.median(c[m]['distance'] / max(c['perceptual']['distance'], 1e-9) for c in cells.values()):.2f}x ({m})"
-                             for m in ("size", "geometric"))
+                 + ", ".join(f"{statistics.median(_ratios(cells, m)):.2f}x ({m})" for m in ("size", "geometric"))
                  + " the perceptual k at the same budget. The baselines have no k.")
     if gl_ok:
         for fld, what in (("flip", "FLIP"), ("wflip", "eccentricity-weighted FLIP")):
@@ -467,6 +476,17 @@ def summary(records, infos, offsets, gl_ok):
             lines.append(f"- **Perceptual cut vs the better baseline, gaze {off:g} deg**, FLIP ratio (median over "
                          "meshes, < 1 = perceptual better): "
                          + ", ".join(f"{f:.0%}: {statistics.median(v):.2f}" for f, v in sorted(per_budget.items())) + ".")
+    if gl_ok and len(offsets) > 1:
+        lines.append("- FLIP is foveal everywhere, so it cannot see the gaze: the baselines' FLIP is the same in every "
+                     "view, and the gaze views differ only through the perceptual cut (the same camera). wFLIP "
+                     "discounts peripheral errors; with the gaze off the object it becomes tiny for every method.")
+    imp = [i for i in infos if "imperceptible_triangles" in i]
+    if imp:
+        lines.append("- **Imperceptible cut** (`optim.imperceptible_cut`, k <= 1: no fold visible from here), triangles "
+                     "(share of the input) per gaze offset: "
+                     + "; ".join(i["mesh"] + " " + ", ".join(f"{g} deg {t:,} ({t / i['triangles']:.0%})"
+                                                             for g, t in i["imperceptible_triangles"].items())
+                                 for i in imp) + ".")
     ms = {m: statistics.median(r["ms"] for r in records if r["method"] == m) for m in METHODS}
     lines.append("- **Time** (median over every mesh, view and budget): "
                  + ", ".join(f"{m} {v:.1f} ms" for m, v in ms.items())
@@ -577,7 +597,7 @@ def main(argv=None) -> int:
         console.print(f"[yellow]no FLIP columns: {gl['error']}[/]")
     offsets = cfg["gaze_offsets_deg"]
     if gl["ok"]:
-        plot_vs_triangles(records, infos, offsets, "flip", "mean FLIP", out / "flip_vs_triangles.png")
+        plot_vs_triangles(records, infos, offsets, "flip", "mean FLIP", out / "flip_vs_triangles.png", by_mesh=True)
         plot_vs_triangles(records, infos, offsets, "wflip", "eccentricity-weighted FLIP", out / "wflip_vs_triangles.png")
         plot_time_vs_flip(records, offsets[0], out / "time_vs_flip.png")
     plot_vs_triangles(records, infos, offsets, "distance", "perceptual distance k", out / "distance_vs_triangles.png",

@@ -164,6 +164,9 @@ class CSFModel(eqx.Module):
     def _peak_frequency(self, e, v):
         shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
         dtype = jnp.result_type(e, v, float)
+        if shape and "e" not in self.inputs and "v" not in self.inputs:
+            # the peak does not depend on e, v: search once (a scalar) and broadcast
+            return jnp.broadcast_to(self._peak_frequency(jnp.zeros((), dtype), jnp.zeros((), dtype)), shape)
         e_, v_, ms = lax.stop_gradient((e, v, self))
         logs = lambda u: ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
         n = 49
