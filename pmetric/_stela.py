@@ -39,7 +39,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jax import lax
+
 from ._base import CSFModel, check_inputs
+from ._inverse import bracketed_root, implicit_root
 
 __all__ = ["StelaCSF", "SENSITIVITY_FLOOR"]
 
@@ -232,6 +235,59 @@ class StelaCSF(CSFModel):
         ln_s = ln_s - _LN10 * (drop + fs * drop_f) * es
         return jnp.where(valid, jnp.maximum(ln_s, _LN_FLOOR), _LN_FLOOR)
 
+    # ---------------------------------------------------------------- peak frequency
+    _PEAK_GRID: ClassVar[int] = 17
+    _PEAK_ITER: ClassVar[int] = 8
+
+    def _peak_frequency(self, e, v):
+        """Frequency of peak sensitivity at (e, v) and the default luminance / area / vis_field.
+
+        The best of a 17-point log grid over [1e-3, 1e3] cycles/deg (one step: a factor 2.37; the
+        sustained and transient log-parabolas are several steps wide) brackets the global maximum,
+        then safeguarded Newton on ``d ln S / d ln f = 0`` (second derivative by forward-over-forward
+        autodiff; 8 iterations, quadratic convergence) refines it. About 40 sensitivity evaluations
+        instead of the ~100 of the base class's 49-point grid + golden-section search. Gradient: the
+        implicit-function derivative of ``d ln S / d ln f = 0`` (as the base class)."""
+        shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
+        dtype = jnp.result_type(e, v, float)
+        e_, v_, ms = lax.stop_gradient((e, v, self))
+        logs = lambda u: ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
+        n = self._PEAK_GRID
+        u_lo, u_hi = np.log(1e-3), np.log(1e3)
+        du = (u_hi - u_lo) / (n - 1)
+
+        def scan(j, state):
+            best_u, best_s = state
+            u = jnp.full(shape, u_lo + j * du, dtype)
+            s = logs(u)
+            better = s > best_s
+            return jnp.where(better, u, best_u), jnp.where(better, s, best_s)
+
+        init = (jnp.full(shape, u_lo, dtype), jnp.full(shape, -jnp.inf, dtype))
+        ub, _ = lax.fori_loop(0, n, scan, init)
+        d1 = lambda u: jax.jvp(logs, (u,), (jnp.ones_like(u),))[1]  # noqa: E731
+
+        def newton(_, state):  # safeguarded Newton on d1 = 0 (bisection when the step leaves the bracket)
+            lo, hi, u = state
+            g, dg = jax.jvp(d1, (u,), (jnp.ones_like(u),))
+            up = g >= 0
+            lo, hi = jnp.where(up, u, lo), jnp.where(up, hi, u)
+            step = u - g / jnp.where(dg < 0, dg, -1.0)
+            inside = (dg < 0) & (step > lo) & (step < hi)
+            return lo, hi, jnp.where(inside, step, 0.5 * (lo + hi))
+
+        lo, hi = ub - du, ub + du
+        ok = (d1(lo) >= 0) & (d1(hi) < 0)
+        _, _, root = lax.fori_loop(0, self._PEAK_ITER, newton, (lo, hi, ub))
+        u_star = lax.stop_gradient(jnp.where(ok, root, ub))
+
+        def dlog(u):
+            return jax.jvp(lambda uu: self.log_sensitivity(jnp.exp(uu), e, v), (u,), (jnp.ones_like(u),))[1]
+
+        interior = ok & (u_star > u_lo + du) & (u_star < u_hi - du)
+        u = implicit_root(dlog, u_star, mask=interior)
+        return jnp.exp(u)
+
     def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
         """Sensitivity 1/c_T of a stimulus: f (cycles/deg), e (deg), v (deg/s), luminance (cd/m2), area (deg2).
 
@@ -255,3 +311,4 @@ class StelaCSF(CSFModel):
 def _jit_log_s(model, f, e, v, L, A, vf):
     # one compiled kernel per shape/dtype: fast eager calls; inlined when traced inside an outer jit
     return model._log_s(f, e, v, L, A, vf)
+
