@@ -104,3 +104,19 @@ def save_run_info(out_dir: str | Path, config: Mapping[str, Any], seed: int | No
     path = Path(out_dir) / "run_info.json"
     atomic_write_text(path, json.dumps(info, indent=2, default=str) + "\n")
     return path
+
+
+def run_main(main) -> int:
+    """Run an experiment's ``main()`` as a script: user errors (bad config, missing file, bad value)
+    are printed as one line naming the problem, with exit status 2, never as a traceback."""
+    import sys
+
+    try:
+        return int(main() or 0)
+    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+        prog = Path(sys.argv[0]).stem if sys.argv and sys.argv[0] else "experiment"
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -163,4 +163,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments._runinfo import run_main
+
+    raise SystemExit(run_main(main))

@@ -232,4 +232,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments._runinfo import run_main
+
+    raise SystemExit(run_main(main))

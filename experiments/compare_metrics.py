@@ -613,4 +613,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    from experiments._runinfo import run_main
+
+    raise SystemExit(run_main(main))

@@ -485,4 +485,6 @@ def _res_json(r):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments._runinfo import run_main
+
+    raise SystemExit(run_main(main))

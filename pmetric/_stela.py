@@ -273,7 +273,7 @@ class StelaCSF(CSFModel):
             up = g >= 0
             lo, hi = jnp.where(up, u, lo), jnp.where(up, hi, u)
             step = u - g / jnp.where(dg < 0, dg, -1.0)
-            inside = (dg < 0) & (step > lo) & (step < hi)
+            inside = (dg < 0) & (step >= lo) & (step <= hi)  # inclusive: a converged step stays
             return lo, hi, jnp.where(inside, step, 0.5 * (lo + hi))
 
         lo, hi = ub - du, ub + du

@@ -57,3 +57,28 @@ def test_run_info_records_provenance(tmp_path):
     info = json.loads(path.read_text())
     assert info["seed"] == 7 and info["config"] == {"a": 1} and info["command"] == "plod fit x.csv"
     assert "jax" in info["versions"] and info["git_sha"]
+
+
+def test_run_main_turns_user_errors_into_one_line(capsys):
+    from experiments._runinfo import run_main
+
+    def bad():
+        raise ValueError("unknown config key 'zz'")
+
+    assert run_main(bad) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith("error: unknown config key 'zz'") and "Traceback" not in err
+    assert run_main(lambda: 0) == 0
+
+
+def test_experiment_scripts_reject_unknown_config_keys(tmp_path):
+    import subprocess
+    import sys
+
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("not_a_key = 1\n")
+    for module in ("experiments.compare_metrics", "experiments.fit_real"):
+        proc = subprocess.run([sys.executable, "-m", module, "--config", str(cfg)], capture_output=True,
+                              text=True, timeout=300)
+        assert proc.returncode == 2, (module, proc.stderr)
+        assert "unknown config key 'not_a_key'" in proc.stderr and "Traceback" not in proc.stderr
