@@ -98,8 +98,13 @@ def run(n, repeats, dtype_name):
         generic = type(model).imperceptible_distance is pm.CSFModel.imperceptible_distance
         rows.append((name, m / t_p / 1e6, m / t_d / 1e6, m / t_b / 1e6, t_b / t_d, generic, m))
         print(f"{dtype_name:8s} {name:32s} is_perceptible {rows[-1][1]:8.1f} M/s   imperceptible_distance "
-              f"{rows[-1][2]:8.2f} M/s   bisection {rows[-1][3]:6.2f} M/s   ratio {rows[-1][4]:6.1f}x", flush=True)
+              f"{_fmt(rows[-1][2]):>8s} M/s   bisection {_fmt(rows[-1][3]):>6s} M/s   ratio {rows[-1][4]:6.1f}x", flush=True)
     return rows
+
+
+def _fmt(x):
+    """M evals/s: two decimals, three significant digits below 0.1 (so slow solvers do not read 0.00)."""
+    return f"{x:.2f}" if x >= 0.1 else f"{x:.3g}"
 
 
 def main(argv=None):
@@ -134,7 +139,7 @@ def main(argv=None):
                   "| speed-up vs bisection | solver | inputs | meets 200 / 50 M/s |", "| --- | ---: | ---: | ---: | ---: | --- | ---: | --- |"]
         for r in rows:
             meets = ("yes" if r[1] >= 200 else "no") + " / " + ("yes" if r[2] >= 50 else "no")
-            lines.append(f"| {r[0]} | {r[1]:.1f} | {r[2]:.2f} | {r[3]:.2f} | {r[4]:.1f}x | "
+            lines.append(f"| {r[0]} | {r[1]:.1f} | {_fmt(r[2])} | {_fmt(r[3])} | {r[4]:.1f}x | "
                          f"{'generic (CSFModel)' if r[5] else 'model-specific'} | {r[6]:,} | {meets if dt == 'float32' else '-'} |")
         lines.append("")
     pm.atomic_write_text(args.out, "\n".join(lines))

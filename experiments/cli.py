@@ -74,4 +74,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # Run the imported module's main, so that PlodError raised by subcommands (which import
+    # experiments.cli) is the class caught here, not a twin defined in __main__.
+    from experiments.cli import main as _main
+
+    sys.exit(_main())

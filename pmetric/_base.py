@@ -205,6 +205,12 @@ class CSFModel(eqx.Module):
         u = implicit_root(dlog, u_star, mask=interior)
         return jnp.exp(u)
 
+    def _peak_frequency_sg(self, e, v):
+        """The peak frequency under ``stop_gradient`` (used where its derivative is not needed, e.g. the
+        distance margin). Subclasses whose ``_peak_frequency`` pays for an implicit-gradient pass in the
+        forward computation override it with the bare search."""
+        return lax.stop_gradient(self._peak_frequency(e, v))
+
     def is_perceptible(self, c, f, e=0.0, v=0.0):
         """True where contrast ``c`` at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
         velocity ``v`` (deg/s) is visible: ``c >= c_T(max(f, f_peak(e, v)), e, v)`` (below the peak
@@ -212,7 +218,7 @@ class CSFModel(eqx.Module):
         Bool array of the broadcast shape. NaN inputs under jit give False."""
         c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
         self = self._like(c, f, e, v)
-        fe = jnp.maximum(f, self._peak_frequency(e, v))
+        fe = jnp.maximum(f, self._peak_frequency_sg(e, v))  # a bool: no gradient needed
         return _log_guard(c) + self.log_sensitivity(fe, e, v) >= 0
 
     def threshold_frequency(self, c, e=0.0, v=0.0):
@@ -257,7 +263,7 @@ class CSFModel(eqx.Module):
         differentiating the peak search."""
         f = k / (2.0 * theta)
         ek, vk = e / k, v / k
-        fe = jnp.maximum(f, lax.stop_gradient(self._peak_frequency(ek, vk)))
+        fe = jnp.maximum(f, self._peak_frequency_sg(ek, vk))
         return _log_guard(c) + self.log_sensitivity(fe, ek, vk)
 
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
