@@ -1,11 +1,11 @@
 """Benchmark: per-view update (score + budget cut + extract) against meshoptimizer's simplify.
 
-    .venv/bin/python -m experiments.bench_optim                  # 796k-triangle mesh + 1.3M procedural
+    .venv/bin/python -m experiments.bench_optim                  # 796k-triangle mesh + 1.0M and 1.3M procedural
     .venv/bin/python -m experiments.bench_optim --quick          # small procedural mesh, seconds
     .venv/bin/python -m experiments.bench_optim --with-tree      # also engineer C's bench_tree sections
 
 For each mesh (the shared 796k-triangle turbine blade when ``../shared`` exists, skipped cleanly
-otherwise, and a procedural bumpy sphere of 1,310,720 triangles): build the vertex tree once, then
+otherwise, a procedural bumpy torus of 1,000,000 and a bumpy sphere of 1,310,720 triangles): build the vertex tree once, then
 for 8 views around the object (framed at 30 deg of a 46 deg screen, gaze at the centre, seed 004's
 study) time ``optim.score`` (perceptual keys, the default model), ``optim.budget_cut`` to 10 % of the
 input triangles and ``optim.extract``. meshoptimizer's ``simplify`` then produces the same triangle
@@ -176,6 +176,7 @@ def main(argv=None) -> int:
         else:
             args.skipped = f"{BIG} (../shared is absent)"
             con.print(f"[yellow]skipping {BIG}: ../shared is absent[/yellow]")
+        meshes.append(("bumpy_torus(1000, 500)", lambda: optim.bumpy_torus(1000, 500, seed=0)))
         meshes.append(("bumpy_sphere(8)", lambda: optim.bumpy_sphere(8, seed=0)[:2]))
     recs = []
     with Progress(console=con, transient=True) as progress:

@@ -6,7 +6,7 @@ Stages (one file each): build hierarchy (``_tree``) -> view (``_view``) -> score
 
 # Each private module adds its public names below (one import line per module).
 from ._fit import FitResult, expressible_rows, fit_least_squares, fitted_fields
-from ._mesh import MeshReport, bumpy_sphere, grid_mesh, icosphere, load_mesh, save_mesh, validate_mesh
+from ._mesh import MeshReport, bumpy_sphere, bumpy_torus, grid_mesh, icosphere, load_mesh, save_mesh, validate_mesh
 from ._tree import Lighting, VertexTree, build_tree, load_tree, mesh_hash, normal_cell_directions, normal_cells, vertex_luminance
 from ._cut import Cut, budget_cut, budget_cut_heap, extract, repair_monotone, threshold_cut
 from ._view import View

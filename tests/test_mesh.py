@@ -209,3 +209,20 @@ def test_load_shared_cow():
     assert f.shape == (5804, 3) and c is None
     v2, f2, _, rep = optim.validate_mesh(v, f, name="cow.obj")
     assert f2.shape[0] + rep.dropped_degenerate + rep.dropped_duplicate == 5804
+
+
+def test_bumpy_torus_is_a_closed_outward_genus_one_surface():
+    import trimesh
+
+    v, f, c = optim.bumpy_torus(40, 20, seed=3, colors=True)
+    assert f.shape == (2 * 40 * 20, 3) and v.shape == (40 * 20, 3) and c.shape == (800, 3)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent and m.euler_number == 0  # V - E + F = 0: genus 1
+    assert m.volume > 0  # faces wind outward
+    # Bumps are bounded by the amplitude: every vertex lies within 8% of the tube radius of the clean torus.
+    ring = np.hypot(v[:, 0], v[:, 1])
+    tube = np.hypot(ring - 1.0, v[:, 2])
+    assert np.all(np.abs(tube - 0.4) <= 0.08 * 0.4 + 1e-12)
+    assert optim.bumpy_torus(1000, 500)[1].shape[0] == 1_000_000
+    with pytest.raises(ValueError, match="nu and nv must be >= 3"):
+        optim.bumpy_torus(2, 10)
