@@ -57,7 +57,6 @@ def _enable_compile_cache() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", message=".*JAXopt is no longer maintained.*", category=DeprecationWarning)
-    _enable_compile_cache()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -73,9 +72,16 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-if __name__ == "__main__":  # pragma: no cover
-    # Run the imported module's main, so that PlodError raised by subcommands (which import
-    # experiments.cli) is the class caught here, not a twin defined in __main__.
-    from experiments.cli import main as _main
+def entry() -> None:  # pragma: no cover - the console script
+    """The ``plod`` console script: ``main`` plus the persistent XLA cache (a process-wide setting,
+    so it is switched on here and not in ``main``, which tests and other programs call)."""
+    _enable_compile_cache()
+    sys.exit(main())
 
-    sys.exit(_main())
+
+if __name__ == "__main__":  # pragma: no cover
+    # Run the imported module's entry, so that PlodError raised by subcommands (which import
+    # experiments.cli) is the class caught here, not a twin defined in __main__.
+    from experiments.cli import entry as _entry
+
+    _entry()
