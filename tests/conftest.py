@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -19,26 +20,30 @@ ROOT = Path(__file__).resolve().parent.parent
 SHARED = Path(os.environ.get("PLOD_SHARED", ROOT.parent / "shared"))
 
 
-@pytest.fixture
-def x64():
-    """Run the test with 64-bit JAX (restored afterwards)."""
+@contextlib.contextmanager
+def x64_mode(enabled: bool = True):
+    """Switch JAX's 64-bit mode for a block (restored afterwards); usable inside hypothesis tests,
+    where function-scoped fixtures do not apply per example (``from conftest import x64_mode``)."""
     old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_enable_x64", enabled)
     try:
         yield
     finally:
         jax.config.update("jax_enable_x64", old)
 
 
+@pytest.fixture
+def x64():
+    """Run the test with 64-bit JAX (restored afterwards)."""
+    with x64_mode(True):
+        yield
+
+
 @pytest.fixture(params=["float32", "float64"])
 def dtype(request):
     """Parametrise a test over float32 and float64 (x64 switched on for float64)."""
-    old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", request.param == "float64")
-    try:
+    with x64_mode(request.param == "float64"):
         yield request.param
-    finally:
-        jax.config.update("jax_enable_x64", old)
 
 
 @pytest.fixture(scope="session")

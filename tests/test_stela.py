@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import csv
 
@@ -17,14 +16,7 @@ from hypothesis import strategies as st
 import pmetric
 from pmetric import StelaCSF
 
-@contextlib.contextmanager
-def x64_mode():
-    old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_enable_x64", old)
+from conftest import x64_mode
 
 
 # ---------------------------------------------------------------- an independent numpy reference
