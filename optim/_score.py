@@ -864,14 +864,10 @@ class NodeTerms(NamedTuple):
 
 def default_model():
     """The perceptual model used when none is given: Kelly's abstract CSF (seed 001) with its defaults
-    (peak sensitivity 200 at 4 cycles/deg), else Manos-Sakrison."""
+    (peak sensitivity 200 at 4 cycles/deg)."""
     import pmetric
 
-    for name in ("KellyAbstract", "ManosSakrison"):
-        cls = getattr(pmetric, name, None)
-        if cls is not None:
-            return cls()
-    raise ValueError("score: no default perceptual model is available in pmetric; pass model=")
+    return pmetric.KellyAbstract()
 
 
 def node_terms(tree, view) -> NodeTerms:

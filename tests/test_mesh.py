@@ -169,22 +169,17 @@ def test_load_scene_concatenated(tmp_path):
 def test_load_errors_name_the_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.ply"):
         optim.load_mesh(tmp_path / "nope.ply")
-    bad = tmp_path / "garbage.ply"
-    bad.write_bytes(b"this is not a mesh\x00\x01\x02")
-    with pytest.raises(ValueError, match="garbage.ply"):
-        optim.load_mesh(bad)
-    empty = tmp_path / "empty.obj"
-    empty.write_text("")
-    with pytest.raises(ValueError, match="empty.obj"):
-        optim.load_mesh(empty)
-    pts = tmp_path / "points.obj"
-    pts.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
-    with pytest.raises(ValueError, match="points.obj"):
-        optim.load_mesh(pts)
-    nan = tmp_path / "nan.obj"
-    nan.write_text("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    with pytest.raises(ValueError, match="nan.obj"):
-        optim.load_mesh(nan)
+    bad_files = {
+        "garbage.ply": b"this is not a mesh\x00\x01\x02",
+        "empty.obj": b"",
+        "points.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\n",
+        "nan.obj": b"v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    }
+    for name, content in bad_files.items():
+        path = tmp_path / name
+        path.write_bytes(content)
+        with pytest.raises(ValueError, match=name.replace(".", r"\.")):
+            optim.load_mesh(path)
     with pytest.raises(ValueError, match="directory"):
         optim.load_mesh(tmp_path)
 
