@@ -25,19 +25,17 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from ._base import LOG_CT_MAX, CSFModel, check_inputs
-from ._csf import _param
-from ._inverse import implicit_root, lambertw_m1, largest_crossing
+from ._base import LOG_CT_MAX, CSFModel, _is_tracer, check_inputs
+from ._csf import _clenshaw, _param
+from ._inverse import implicit_root, largest_crossing
 
 __all__ = ["ReddyAcuity", "SmoothReddyAcuity"]
 
 _BIG = 1e30  # stands in for xi = None (no display cap): finite so gradients stay finite
 _P = 200.0  # p-norm soft minimum: relative error <= 1 - 2^(-1/200) = 0.35 % at a knot
-
-
-_NEWTON_STEPS = 6  # G middle x M outer piece (monotone Newton from an upper bound)
 
 
 def _dtype(*xs):
@@ -62,9 +60,9 @@ class ReddyAcuity(CSFModel):
     :meth:`acuity` is H'; :meth:`sensitivity` is the step ``exp(+-LOG_CT_MAX)`` (about 1e26 below H',
     1e-26 above), so :meth:`threshold_contrast` is ~0 for visible and ~1e26 for invisible frequencies;
     :meth:`peak_frequency` is 0 (sensitivity is flat on [0, H']), :meth:`threshold_frequency` is H' for
-    c > 0. :meth:`imperceptible_distance` solves ``k = 2 theta H'(v/k, e/k)`` exactly: log H' is concave
-    in log k above the G floor (v/k <= 118.3) and below it, so Newton from the right on each piece (from
-    the upper bound ``2 theta min(xi, 60)``) converges monotonically to the largest root.
+    c > 0. :meth:`imperceptible_distance` solves ``k = 2 theta H'(v/k, e/k)`` exactly: one closed-form
+    candidate per piece of H' (the G-middle piece through the Lambert-type root of ``u - ln u = t``), the
+    largest valid one is the answer; one fused elementwise pass, no loop for Reddy's constants.
 
     Domain: f >= 0, e in [0, 1e4] deg, v in [0, 1e6] deg/s, c in [0, 1].
     """
@@ -182,120 +180,263 @@ class ReddyAcuity(CSFModel):
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
         """Largest k with ``k / (2 theta) <= H'(v / k, e / k)`` (0 where c = 0 or theta = 0); theta deg.
 
-        See :meth:`CSFModel.imperceptible_distance` for the definition. Exact model: direct solve,
-        one closed-form (or monotone-Newton) candidate per piece of H' (see ``_exact_distance``).
+        ``e`` in deg, ``v`` in deg/s, ``k`` a dimensionless multiple of the viewing distance. See
+        :meth:`CSFModel.imperceptible_distance` for the definition; 0 also where no k is perceptible.
+        Exact model: direct solve, one closed-form candidate per piece of H' (see ``_exact_distance``),
+        elementwise with no loop (traced constants: a ``lax.switch`` on them picks the variant); an
+        iterative candidate (``_NEWTON_STEPS`` Newton steps) only for M's outer piece when ``m_scale < 4``.
         Smooth model: the generic largest-crossing scan (81 points over 40 e-folds below
         ``2 theta min(xi, g_max)``, the upper bound of every answer) refined by safeguarded Newton.
-        Gradients: implicit-function theorem on ``ln(2 theta H') = ln k``.
+        Gradients: implicit-function theorem on ``ln(2 theta H') = ln k`` (exact model: a ``custom_jvp``
+        whose tangent is ``-(drho/dp . dp) / (drho/dln k)``, so the forward pass is the solve alone).
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = _dtype(c, theta, e, v)
-        ok_in = (c > 0) & (theta > 0)
-        th = jnp.where(theta > 0, theta, 1.0)
-        e_b, v_b, th_b = (jnp.broadcast_to(x, shape).astype(dtype) for x in (e, v, th))
+        c_b, th_b, e_b, v_b = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, e, v))
+        if not self.smooth:
+            return _exact_k(self._solve_mode(), self, c_b, th_b, e_b, v_b)
+        ok_in = (c_b > 0) & (th_b > 0)
+        th_b = jnp.where(th_b > 0, th_b, 1.0)
         rho = lambda w: self._rho(w, th_b, e_b, v_b)  # noqa: E731
-        if self.smooth:
-            e_, v_, th_ = (lax.stop_gradient(x) for x in (e_b, v_b, th_b))
-            ms = lax.stop_gradient(self)
-            rho_sg = lambda w: ms._rho(w, th_, e_, v_)  # noqa: E731
-            lxi, lgmax = jnp.log(self._consts(dtype)[6]), jnp.log(self._consts(dtype)[0])
-            w_top = lax.stop_gradient(jnp.log(2.0 * th_) + jnp.minimum(lxi, lgmax) + 1e-3)
-            w, found, _ = largest_crossing(rho_sg, w_top - 40.0, w_top, n_grid=81)
-        else:
-            w, found = self._exact_distance(th_b, e_b, v_b, dtype)
+        e_, v_, th_ = (lax.stop_gradient(x) for x in (e_b, v_b, th_b))
+        ms = lax.stop_gradient(self)
+        rho_sg = lambda w: ms._rho(w, th_, e_, v_)  # noqa: E731
+        lxi, lgmax = jnp.log(self._consts(dtype)[6]), jnp.log(self._consts(dtype)[0])
+        w_top = lax.stop_gradient(jnp.log(2.0 * th_) + jnp.minimum(lxi, lgmax) + 1e-3)
+        w, found, _ = largest_crossing(rho_sg, w_top - 40.0, w_top, n_grid=81)
         ok = found & ok_in
         w = implicit_root(rho, jnp.where(ok, w, 0.0), mask=ok)
         return jnp.where(ok, jnp.exp(w), 0.0).astype(dtype)
 
-    def _exact_distance(self, theta, e, v, dtype):
-        """ln of the largest k with ``k <= 2 theta H'(v/k, e/k)`` (exact model), under stop_gradient.
+    def _solve_mode(self):
+        """``(outer, far)`` for ``_exact_distance`` when the constants are concrete, else None.
 
-        One candidate per piece of ``H' = min(xi, G M)`` (G in {g_max, middle, g_min} x M in {1, outer},
-        plus the cap xi): each piece's equation ``k = 2 theta H_piece(v/k, e/k)`` has its largest root in
-        closed form (constant G and M = 1: linear; constant G x M outer: a quadratic in k; G middle x
-        M = 1: Lambert W_{-1}) or, for G middle x M outer, by Newton from the right on a function of
-        ln k that is concave (monotone convergence from an upper bound of the root). A candidate is kept
-        where it lies in its piece's region (the knots in ln k are computed once) with the piece
-        perceptible there and below the xi cap; every kept candidate is then a perceptible k, and the
-        piece holding the true answer yields it, so the answer is the largest kept candidate.
-        Returns ``(ln k, found)``.
+        ``outer``: M's outer piece can hold the answer (``m_scale < 4``); ``far``: G's middle piece can
+        reach ``u = G / s`` beyond the Chebyshev start of :func:`_u_root` (``g_max / s > 11.4``; Reddy's
+        constants: 4.97)."""
+        gmax, gsl, ms = self.g_max, self.g_slope, self.m_scale
+        if any(_is_tracer(x) for x in (gmax, gsl, ms)):
+            return None
+        far = np.asarray(gmax, float) * math.log(10.0) / np.asarray(gsl, float) > _U_FAR
+        return bool(np.any(np.asarray(ms, float) < 4.0)), bool(np.any(far))
+
+    def _exact_distance(self, c, theta, e, v, outer, far):
+        """The largest k with ``k <= 2 theta H'(v/k, e/k)`` (exact model; 0 where none, c = 0, theta = 0).
+
+        Inputs: arrays of one shape and floating dtype (theta, e in deg, v in deg/s); no gradient (see
+        :func:`_exact_k`). Written for ``y = k / (2 theta)``, the frequency (cycles/deg) of the change at
+        distance multiple k: the answer is the largest y with ``y <= H'`` at ``v/k = x / y``,
+        ``e/k = (e / 2 theta) / y`` (``x = v / 2 theta``). There ``y = H'`` on one piece of
+        ``H' = min(xi, G M)`` (seed 000 Eq 4-5), and every piece's equation has its largest root in closed
+        form -- G, M constant: ``y = g``; the display cap: ``y = xi``; G's middle piece
+        (``G = ga - s ln(v/k)``) with M = 1: ``y = s u`` with ``u - ln u = t`` (the Lambert
+        ``-W_{-1}(-e^-t)``, :func:`_u_root`); G constant with M's outer piece ``ms k^2 / (q + k)^2``: a
+        quadratic in y. A candidate is kept where it lies in its piece's region (tested in closed form,
+        with a slack of 256 ulp in ln k) and below the cap; each kept candidate is a perceptible k and the
+        piece holding the answer yields it, so the answer is the largest kept candidate.
+        On M's outer piece (k < k_m = q / (sqrt(ms) - 1)) the ratio ``G M / k = G ms k / (q + k)^2`` grows
+        with k while ``k < q``; so for ``m_scale >= 4`` (``k_m <= q``; Reddy's 7.49) no answer lies inside
+        it (except at the cap) and ``outer=False`` skips its candidates. ``outer=True`` adds them: the two
+        quadratics and, for G middle x M outer, Newton from the right on a concave function of ln k from
+        an upper bound of its largest root (monotone convergence, ``_NEWTON_STEPS`` steps).
+        Without ``outer`` the solve is one elementwise pass with one log (``ln(v / 2 theta)``), a square
+        root and, in float64, one exp (see :func:`_u_root`; ``far`` adds its asymptotic start).
         """
         sg = lax.stop_gradient
+        dtype = theta.dtype
         gmax, ga, gsl, gmin, ms, mr, xi = (sg(x) for x in self._consts(dtype))
-        theta, e, v = sg(theta), sg(e), sg(v)
-        eps = jnp.finfo(dtype).eps
-        tol = 256.0 * eps  # slack of the region tests, in ln k
-        big = jnp.asarray(jnp.finfo(dtype).max / 4, dtype)
-        T = 2.0 * theta
-        lT = jnp.log(T)
-        s = gsl / math.log(10.0)  # G middle = A_v + s ln k
+        c, theta, e, v = sg(c), sg(theta), sg(e), sg(v)
+        tol = 256.0 * jnp.finfo(dtype).eps  # slack of the region tests, in ln k
+        ok_in = (c > 0) & (theta > 0)
+        T = 2.0 * jnp.where(theta > 0, theta, 1.0)
+        s = gsl / math.log(10.0)  # G middle = ga - s ln(v / k)
+        a_hi = (ga - gmax) / s  # ln of the velocity v/k (deg/s) where G leaves g_max (0.825 deg/s)
+        a_lo = (ga - gmin) / s  # ... and reaches g_min (118 deg/s)
+        sq = jnp.sqrt(ms) - 1.0  # M(e/k) = 1 where q / k <= sq
+        xi_hi = xi * (1.0 + tol)
         vpos = v > 0
-        A_v = ga - gsl * jnp.log10(jnp.where(vpos, v, 1.0))
-        w_ghi = jnp.where(vpos, (gmax - A_v) / s, -big)  # G = g_max where ln k >= w_ghi
-        w_glo = jnp.where(vpos, (gmin - A_v) / s, -big)  # G = g_min where ln k <= w_glo
-        q = mr * e  # M outer = ms k^2 / (q + k)^2
-        sq = jnp.sqrt(ms) - 1.0
-        epos = (q > 0) & (sq > 0)
-        lq = jnp.log(jnp.where(epos, q, 1.0))
-        # M outer (<= 1) where ln k <= w_m
-        w_m = jnp.where(epos, lq - jnp.log(jnp.where(sq > 0, sq, 1.0)), jnp.where(sq > 0, -big, big))
-        w_xi = lT + jnp.log(xi)
-        cands = []
+        x = v / T  # v/k at y = 1 (+inf where it overflows: G = g_min everywhere)
+        L = jnp.log(jnp.where(vpos, x, 1.0))  # ln(v/k) at y = 1 (log(0) avoided: slow and -inf)
+        r = mr * e / T  # q / k at y = 1 (q = m_rate e)
 
-        def add(w, ok):
-            cands.append(jnp.where(ok & (w <= w_xi + tol), w, -jnp.inf))
+        def m_one(y):  # M(e/k) = 1 at k = T y
+            return r <= sq * y * (1.0 + tol)
 
-        in_gmax = lambda w: w >= w_ghi - tol  # noqa: E731
-        in_gmin = lambda w: w <= w_glo + tol  # noqa: E731
-        # constant G, M = 1: k = T g
-        for g, in_g in ((gmax, in_gmax), (gmin, in_gmin)):
-            w = lT + jnp.log(g)
-            add(w, in_g(w) & (w >= w_m - tol))
-        # constant G, M outer: (q + k)^2 = T g ms k, largest root of k^2 - (B - 2q) k ... (B = T g ms - 2q)
-        w_quad = []
-        for g, in_g in ((gmax, in_gmax), (gmin, in_gmin)):
-            B = T * g * ms - 2.0 * q
-            disc = (B - 2.0 * q) * (B + 2.0 * q)
-            okq = (disc >= 0) & (B > 0)
-            w = jnp.log(jnp.where(okq, 0.5 * (B + jnp.sqrt(jnp.where(okq, disc, 0.0))), 1.0))
-            add(w, okq & in_g(w) & (w <= w_m + tol))
-            w_quad.append(jnp.where(okq, w, -big))
-        # G middle, M = 1: k = T (A_v + s ln k)  ->  k = -T s W_{-1}(-exp(-A_v / s) / (T s))
-        lz = -A_v / s - lT - jnp.log(s)  # ln(-z)
-        okw = vpos & (lz <= -1.0)
-        z = -jnp.exp(jnp.maximum(jnp.where(okw, lz, -1.0), jnp.log(jnp.finfo(dtype).tiny)))
-        w5 = jnp.where(okw, lT + jnp.log(s) + jnp.log(-lambertw_m1(z)), -big)
-        add(w5, okw & (w5 >= w_glo - tol) & (w5 <= w_ghi + tol) & (w5 >= w_m - tol))
-        # G middle, M outer: phi(w) = ln T + ln(A_v + s w) + ln ms + w - 2 ln(q + e^w) = 0, concave in w.
-        # In this region phi is below the (G middle, M = 1) and (g_max, M outer) pieces, so their roots
-        # bound its largest root from above: Newton from there descends monotonically onto it.
-        w = jnp.minimum(jnp.minimum(w_ghi, w_m), jnp.minimum(w5, w_quad[0]))
-        ok6 = vpos & epos & (w >= w_glo - tol) & (w > -big)
-        w = jnp.where(ok6, w, 0.0)
-        lms = jnp.log(ms)
+        # G = g_max, M = 1 (y = g_max) and G = g_min, M = 1 (y = g_min)
+        at_top = ~vpos | (L <= jnp.log(gmax) + a_hi + tol)
+        y = jnp.where(at_top & m_one(gmax) & (gmax <= xi_hi), gmax, 0.0)
+        at_bot = vpos & (L >= jnp.log(gmin) + a_lo - tol)
+        y = jnp.maximum(y, jnp.where(at_bot & m_one(gmin) & (gmin <= xi_hi), gmin, 0.0))
+        # G middle, M = 1: y = ga - s ln(v / (T y)), i.e. u - ln u = t with y = s u
+        t = ga / s + jnp.log(s) - L
+        ok5 = vpos & (t >= 1.0) & (t < jnp.inf)
+        y5 = s * _u_root(jnp.where(ok5, t, 1.0), far)
+        in5 = (y5 >= gmin - s * tol) & (y5 <= gmax + s * tol) & m_one(y5) & (y5 <= xi_hi)
+        y = jnp.maximum(y, jnp.where(ok5 & in5, y5, 0.0))
+        # the display cap: y = xi where G M >= xi there
+        g_x = jnp.where(vpos, jnp.clip(ga - s * (L - jnp.log(xi)), gmin, gmax), gmax)
+        m_x = jnp.minimum(1.0, ms / jnp.square(1.0 + r / xi))
+        y = jnp.maximum(y, jnp.where(g_x * m_x >= xi * (1.0 - tol), xi, 0.0))
+        if outer:
+            y = _outer_candidates(y, jnp.where(vpos, x, 0.0), L, r, vpos, jnp.where(ok5, y5, 0.0),
+                                  gmax, ga, gmin, ms, s, a_hi, a_lo, sq, xi_hi, tol)
+        k = T * y
+        return jnp.where(ok_in & (y > 0) & (k < jnp.inf), k, 0.0)
 
-        def phi_dphi(w):
-            g_lin = jnp.maximum(A_v + s * w, eps)
-            d = w - lq  # ln(k / q)
-            phi = lT + jnp.log(g_lin) + lms + w - 2.0 * (lq + jax.nn.softplus(d))
-            return phi, s / g_lin + 1.0 - 2.0 * jax.nn.sigmoid(d)
 
-        def newton(_, w):
-            phi, dphi = phi_dphi(w)
-            return w - jnp.where((phi < 0) & (dphi < 0), phi / jnp.minimum(dphi, -eps), 0.0)
+_NEWTON_STEPS = 10  # G middle x M outer piece (monotone Newton from an upper bound)
+_U_P = 4.0  # the Chebyshev start of _u_root covers p = sqrt(2 (t - 1)) in [0, _U_P]
 
-        w = lax.fori_loop(0, _NEWTON_STEPS, newton, w)
-        phi, _ = phi_dphi(w)
-        in6 = (A_v + s * w > 0) & (w >= w_glo - tol) & (w <= w_ghi + tol) & (w <= w_m + tol)
-        add(w, ok6 & in6 & (phi >= -16.0 * tol))
-        # the display cap itself: k = T xi where G M is not the binding limit
-        kx = jnp.exp(w_xi)
-        rho_x = lT + self._log_gm(v / kx, e / kx, dtype) - w_xi
-        cands.append(jnp.where(rho_x >= -tol, w_xi, -jnp.inf))
-        w_star = functools.reduce(jnp.maximum, cands)
-        found = jnp.isfinite(w_star)
-        return jnp.where(found, w_star, 0.0), found
+
+def _u_of_p(p):
+    """u >= 1 with ``u - 1 - ln u = p^2 / 2`` (numpy, float64, to convergence): Newton on d = u - 1 from
+    above (``d - ln(1 + d)`` is convex and increasing in d > 0, so the iterates decrease onto the root)."""
+    p = np.asarray(p, float)
+    d = 0.5 * p * p + 2.0 * p + 1.0
+    for _ in range(200):
+        g = d - np.log1p(d) - 0.5 * p * p
+        d = np.maximum(d - g * (1.0 + d) / np.maximum(d, 1e-300), 0.0)
+    return 1.0 + d
+
+
+def _u_cheb(deg: int):
+    """Chebyshev coefficients (in ``2 p / _U_P - 1``) of u(p), p in [0, _U_P] (u analytic there: its
+    nearest singularities are at p = (1 +- i) sqrt(2 pi)): relative error 4e-9 at degree 10, 1e-13 at 16."""
+    j = np.arange(4 * deg)
+    xj = np.cos(np.pi * (j + 0.5) / (4 * deg))
+    return tuple(float(c) for c in np.polynomial.chebyshev.chebfit(xj, _u_of_p(0.5 * _U_P * (xj + 1.0)), deg))
+
+
+_U_CHEB32 = _u_cheb(10)
+_U_CHEB64 = _u_cheb(16)
+_U_FAR = float(_u_of_p(_U_P)) * (1.0 - 1e-3)  # 11.4: u above this needs the asymptotic start
+
+
+def _u_root(t, far):
+    """The root ``u >= 1`` of ``u - ln u = t`` (``t >= 1``), i.e. ``u = -W_{-1}(-exp(-t))``; no gradient.
+
+    Start: a Chebyshev interpolant of u in ``p = sqrt(2 (t - 1))`` on [0, 4] (u <= 11.4; degree 10 in
+    float32, 16 in float64, relative error 4e-9 / 1e-13; near the branch point p -> 0, where the
+    problem is ill-conditioned, it is as exact as t). Float64 adds one Halley step (cubic convergence,
+    one exp) on ``a(u) = u - exp(u - t)`` (the scaled ``u e^-u - e^-t``: no overflow). ``far=True``
+    also covers p > 4 with the asymptotic ``t + ln t + ln t / t + ...`` (Corless et al. 1996 eq 4.19)
+    and two (float32) / three (float64) Halley steps; otherwise the values there are not the root.
+    Elementwise, no loop.
+    """
+    f64 = jnp.finfo(t.dtype).bits > 32
+    p = jnp.sqrt(2.0 * jnp.maximum(t - 1.0, 0.0))
+    cheb = _U_CHEB64 if f64 else _U_CHEB32
+    u = jnp.maximum(_clenshaw(jnp.minimum(p, _U_P) * (2.0 / _U_P) - 1.0, cheb), 1.0)
+    steps = 1 if f64 else 0
+    if far:
+        lt = jnp.log(jnp.maximum(t, 1.0))
+        u = jnp.where(p > _U_P, t + lt + lt / t + lt * (lt - 2.0) / (2.0 * t * t), u)
+        steps = 3 if f64 else 2
+    for _ in range(steps):  # Halley on a(u) = u - e^(u - t): a' = 1 - e^(u-t), a'' = -e^(u-t)
+        a = u - jnp.exp(u - t)
+        um1 = u - 1.0
+        den = 2.0 * um1 * um1 - a * (u - 2.0)
+        ok = (p > 1e-3) & (den > 0)
+        u = jnp.where(ok, u + 2.0 * a * um1 / jnp.where(ok, den, 1.0), u)
+    return u
+
+
+def _outer_candidates(y, x, L, r, vpos, y5, gmax, ga, gmin, ms, s, a_hi, a_lo, sq, xi_hi, tol):
+    """``max(y, candidates on M's outer piece)`` for ``m_scale < 4`` (see ``ReddyAcuity._exact_distance``).
+
+    ``y = k / 2 theta``; ``x = v / 2 theta`` (deg/s), ``L = ln x`` (any finite value where v = 0),
+    ``r = m_rate e / 2 theta``, so that ``v/k = x / y`` and ``q/k = r / y``; ``y5`` the root of the
+    G-middle x M = 1 piece (0 where it has none). M outer = ``ms y^2 / (r + y)^2``, outer where
+    ``r / y > sq``. G constant = g: ``(r + y)^2 = g ms y``, a quadratic. G middle: in z = ln y,
+    ``phi(z) = ln(G ms e^z / (r + e^z)^2)`` with ``G = ga - s (L - z)`` is concave; it lies below both
+    the (G middle, M = 1) and the (g_max, M outer) pieces, whose roots therefore bound its largest root
+    from above: Newton from there descends monotonically onto it (one log and one exp per step).
+    """
+    dtype = y.dtype
+    eps = jnp.finfo(dtype).eps
+    tiny = jnp.finfo(dtype).tiny
+    v_hi, v_lo = jnp.exp(a_hi), jnp.exp(a_lo)  # v/k (deg/s) at G's knots
+    outer_at = lambda yy: r >= sq * yy * (1.0 - tol)  # noqa: E731
+    yq = []
+    in_top = lambda yy: x <= yy * v_hi * (1.0 + tol)  # noqa: E731  (G = g_max at v/k = x / yy)
+    in_bot = lambda yy: x >= yy * v_lo * (1.0 - tol)  # noqa: E731  (G = g_min)
+    for g, in_g in ((gmax, in_top), (gmin, in_bot)):
+        B = g * ms - 2.0 * r
+        disc = (B - 2.0 * r) * (B + 2.0 * r)
+        okq = (disc >= 0) & (B > 0)
+        yg = jnp.where(okq, 0.5 * (B + jnp.sqrt(jnp.where(okq, disc, 0.0))), 0.0)
+        y = jnp.maximum(y, jnp.where(okq & in_g(yg) & outer_at(yg) & (yg <= xi_hi), yg, 0.0))
+        yq.append(yg)
+    # G middle x M outer, between y_glo and y_ghi (G = g_min below, g_max above) and below y_m
+    y_ghi, y_glo = x / v_hi, x / v_lo
+    y_m = jnp.where(sq > 0, r / jnp.where(sq > 0, sq, 1.0), jnp.inf)
+    y0 = jnp.minimum(jnp.minimum(y_ghi, y_m), jnp.minimum(y5, yq[0]))  # y5, yq[0] = 0 where none
+    # its root is <= y0: it matters only where y0 exceeds the best other candidate
+    need = vpos & (y0 > y) & (y0 >= y_glo * (1.0 - tol)) & (y0 < jnp.inf) & (r < jnp.inf)
+
+    def solve(y0, Ay, r, y_glo, y_ghi, y_m):
+        def phi_dphi(z):
+            g_lin = jnp.maximum(Ay + s * z, eps)
+            Y = jnp.exp(z)
+            rho = Y / (r + Y)  # e^z / (r + e^z)
+            phi = jnp.log(jnp.maximum(g_lin * ms / (r + Y) * rho, tiny))
+            return phi, s / g_lin + 1.0 - 2.0 * rho, Y
+
+        def newton(_, z):
+            phi, dphi, _ = phi_dphi(z)
+            return z - jnp.where((phi < 0) & (dphi < 0), phi / jnp.minimum(dphi, -eps), 0.0)
+
+        z = lax.fori_loop(0, _NEWTON_STEPS, newton, jnp.log(y0))
+        phi, _, y6 = phi_dphi(z)
+        ok = (Ay + s * z > 0) & (y6 >= y_glo * (1.0 - tol)) & (y6 <= y_ghi * (1.0 + tol))
+        return y6, ok & (y6 <= y_m * (1.0 + tol)) & (phi >= -16.0 * tol) & (y6 <= xi_hi)
+
+    y6, ok6 = solve(jnp.where(need, y0, 1.0), jnp.where(need, ga - s * L, 1.0), jnp.where(need, r, 0.0),
+                    y_glo, y_ghi, y_m)
+    return jnp.maximum(y, jnp.where(need & ok6, y6, 0.0))
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _exact_k(mode, model, c, theta, e, v):
+    """``model._exact_distance`` (exact ReddyAcuity) with the implicit-function derivative.
+
+    ``mode``: ``(outer, far)`` from ``model._solve_mode()``, or None (traced constants): then
+    ``lax.switch`` picks at run time among (False, False), (False, True) and (True, True).
+    """
+    if mode is not None:
+        return model._exact_distance(c, theta, e, v, *mode)
+    dtype = theta.dtype
+    gmax, _, gsl, _, ms, _, _ = (lax.stop_gradient(x) for x in model._consts(dtype))
+    outer = jnp.any(ms < 4.0)
+    far = jnp.any(gmax * math.log(10.0) / gsl > _U_FAR)
+    index = jnp.where(outer, 2, jnp.where(far, 1, 0))
+    branches = [functools.partial(model._exact_distance, outer=o, far=f)
+                for o, f in ((False, False), (False, True), (True, True))]
+    return lax.switch(index, [lambda ops, fn=fn: fn(*ops) for fn in branches], (c, theta, e, v))
+
+
+@_exact_k.defjvp
+def _exact_k_jvp(mode, primals, tangents):
+    """Implicit function theorem on ``rho(ln k; p) = ln(2 theta H'(v/k, e/k)) - ln k = 0``:
+    ``dk = -k (drho/dp . dp) / (drho/dln k)`` where k > 0, 0 elsewhere (c carries no derivative). The
+    forward pass is the solve alone (no evaluation of rho); drho/dln k is held constant under further
+    differentiation, as in :func:`implicit_root`."""
+    model, c, theta, e, v = primals
+    dmodel, _, dtheta, de, dv = tangents
+    k = _exact_k(mode, model, c, theta, e, v)
+    ok = k > 0
+    w = jnp.log(jnp.where(ok, k, 1.0))
+    pos = theta > 0
+    th = jnp.where(pos, theta, 1.0)
+    dth = jnp.where(pos, dtheta, 0.0)
+    _, d_p = jax.jvp(lambda m, t, e_, v_: m._rho(w, t, e_, v_), (model, th, e, v), (dmodel, dth, de, dv))
+    _, d_w = jax.jvp(lambda w_: model._rho(w_, th, e, v), (w,), (jnp.ones_like(w),))
+    d_w = lax.stop_gradient(d_w)  # as in implicit_root (log_acuity's 2nd derivative is NaN at v = 0)
+    floor = jnp.sqrt(jnp.finfo(d_w.dtype).tiny)  # as in implicit_root: 1/floor^2 stays finite
+    d_w = jnp.where(jnp.abs(d_w) > floor, d_w, jnp.where(d_w < 0, -floor, floor))
+    d_w = jnp.where(ok, d_w, 1.0)
+    return k, jnp.where(ok, -k * d_p / d_w, 0.0)
 
 
 class SmoothReddyAcuity(ReddyAcuity):

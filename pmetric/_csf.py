@@ -24,7 +24,8 @@ import numpy as np
 from jax import lax
 
 from ._base import CSFModel, _is_tracer, _log_guard, check_inputs
-from ._inverse import implicit_root, lambertw_m1, largest_crossing
+from ._inverse import implicit_root, implicit_solution, lambertw_m1, largest_crossing
+from ._kelly import kelly_fast, kelly_slow, kelly_structure, rare_compacted
 
 __all__ = ["ManosSakrison", "KellyAbstract", "KellySpatioTemporal", "RovamoVirsu", "Eccentric"]
 
@@ -328,6 +329,11 @@ def _kelly_c0():
 _KELLY_C0 = _kelly_c0()  # 2.2300
 
 
+def _kelly_margin_w(w, model, c, theta, v):
+    """The fused margin of :class:`KellySpatioTemporal` at ``k = exp(w)`` (for implicit derivatives)."""
+    return model._margin(c, jnp.exp(w), theta, v)
+
+
 class KellySpatioTemporal(CSFModel):
     """Kelly (1979) stabilized spatio-temporal CSF: sensitivity to a grating drifting at ``v`` deg/s.
 
@@ -340,8 +346,8 @@ class KellySpatioTemporal(CSFModel):
 
     ``threshold_frequency`` is a closed form (Lambert W, as for :class:`KellyAbstract` with
     ``delta = K(v) v / (b (v+2))^2``). ``imperceptible_distance`` is a direct solve (closed form where
-    the answer lies beyond ``k = 10 v``, monotone Newton where the margin is concave in ln k, a scan
-    only for the rest; see the method).
+    the answer lies beyond ``k = 10 v``, monotone Newton on a margin that is concave in ``k / v``
+    below it, certified brackets for the rare rest; see the method and ``_kelly.py``).
 
     Domain: f in [0, 1e30], v in [0, 1e4]; values and gradients finite.
     """
@@ -415,22 +421,23 @@ class KellySpatioTemporal(CSFModel):
         return _log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta) + 2.0 * jnp.log(a) - a
 
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
-        """See :meth:`CSFModel.imperceptible_distance`; theta deg, v deg/s. Direct solve in ``w = ln k``:
+        """See :meth:`CSFModel.imperceptible_distance`; theta deg, v deg/s. Direct solve (``_kelly.py``):
 
         1. ``k0 = 2 theta f*(c, 0.1)`` (Lambert W). For ``k >= 10 v`` the retinal velocity v/k is clamped
            at 0.1 and perceptibility falls with k, so where ``k0 >= 10 v`` (e.g. v = 0) the answer is k0;
            elsewhere every perceptible k is below ``10 v``.
-        2. For ``k_p <= k < 10 v`` (``k_p = 2 theta / b - v / 2``: there ``f >= f_peak(v / k)``, the
-           falling limb) the margin is ``h(w) = ln c + ln K(v/k) + ln(v k / 4 theta^2) - b (v / 2 theta + k / theta)``,
-           whose second derivative in w is at most ``kappa - b k / theta`` (``kappa = r^(2/3) C0 / ln(10)^2``
-           bounds ``d^2 ln K / dw^2``, ``r = a1 / a0``, ``C0 = 2.2300``), so h is concave for
-           ``k >= k_c = max(k_p, kappa theta / b)``: Newton from ``10 v`` descends monotonically onto the
-           largest root there (12 steps).
-        3. Only where step 2 finds nothing perceptible is ``k < k_c`` searched: a 129-point log grid on
-           ``[2e-4 theta, k_c]`` (one step <= 10 % in k) refined by safeguarded Newton, run only on the
-           elements that need it (gathered into a buffer of a quarter of the batch; the whole batch
-           when more need it; skipped when none do). It can miss a perceptible window narrower than one
-           grid step lying above every perceptible grid point (as the generic solver).
+        2. Below ``10 v``, in ``s = k / v`` the margin on the falling limb is
+           ``h(s) = ln c + ln K(1/s) + ln s - 2 A s + 2 ln(A / b) - A`` (``A = b v / 2 theta``), strictly
+           concave in s for these constants (checked per model by :func:`kelly_structure`): six Newton
+           steps from ``s = 10`` descend monotonically onto its largest root (every iterate is an upper
+           bound, so k errs on the conservative side, converged to 1e-5 relative) or certify that
+           there is none. Below the peak frequency the margin is a fixed function of ``ln(v / k)`` whose
+           local maxima are found once per model; a root there is bracketed from them.
+        3. The few elements step 2 cannot settle (a root close to a tangency, or a root below the peak
+           frequency) are gathered and solved with certified brackets (:func:`kelly_slow`).
+        Constants for which concavity cannot be certified (``a1 / a0`` above about 1.37; Kelly's and Reddy's are 1.197) fall back to
+        a scan: monotone Newton where the margin is concave in ln k, a 129-point grid plus safeguarded
+        Newton elsewhere (it can miss a perceptible window narrower than one grid step).
         Gradients: implicit-function theorem on the fused margin.
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
@@ -440,12 +447,46 @@ class KellySpatioTemporal(CSFModel):
         c, theta, v = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, v))
         pos = theta > 0
         th = jnp.where(pos, theta, 1.0)
-        k0 = 2.0 * th * self._threshold_frequency(c, jnp.zeros_like(c), jnp.zeros_like(v))
+        z0 = jnp.zeros((), dtype)  # v = 0 (clamped to 0.1): scalar terms, folded once
+        k0 = 2.0 * th * self._threshold_frequency(c, z0, z0)
         easy = k0 >= 10.0 * v
         if not _is_tracer(easy) and bool(np.all(np.asarray(easy))):
             return jnp.where(pos, k0, 0.0)
         sg = lax.stop_gradient
         ms, c_, th_, v_ = sg((self, c, th, v))
+        need = (v_ > 0) & ~easy
+        if _is_tracer(self.a0) or _is_tracer(self.a1):
+            struct = kelly_structure(ms.a0, ms.a1, dtype)
+        else:  # concrete constants (the usual case): decide the solver at trace time
+            with jax.ensure_compile_time_eval():
+                struct = kelly_structure(self.a0, self.a1, dtype)
+
+        def direct(_):
+            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, th_, v_, struct)
+            rare = jnp.isnan(w) & need
+            found = w > -jnp.inf
+            slow = lambda c1, t1, v1: kelly_slow(ms.a0, ms.a1, ms.b, c1, t1, v1, struct)  # noqa: E731
+            w_r, found_r = rare_compacted(slow, rare, (c_, th_, v_))
+            return jnp.where(rare, w_r, w), jnp.where(rare, found_r, found) & need
+
+        def scan(_):
+            return ms._distance_scan(c_, th_, v_, easy)
+
+        if _is_tracer(struct[0]):
+            w_star, found = lax.cond(struct[0], direct, scan, None)
+        else:  # XLA on CPU runs the branches of a cond on one thread: avoid it when possible
+            w_star, found = direct(None) if bool(struct[0]) else scan(None)
+        ok = found & pos
+        w = implicit_solution(_kelly_margin_w, jnp.where(ok, w_star, 0.0), ok, self, c, th, v)
+        k = jnp.where(ok, jnp.exp(w), 0.0)
+        return jnp.where(pos & easy, k0, k)
+
+    def _distance_scan(self, c_, th_, v_, easy):
+        """The general solver (any a0, a1): monotone Newton where the margin is concave in ln k, a
+        scan elsewhere. Used when :func:`kelly_structure` cannot certify the direct solve.
+        Returns ``(ln k, found)`` under stop_gradient."""
+        ms = self
+        dtype = c_.dtype
         eps = jnp.finfo(dtype).eps
         vpos = v_ > 0
         vs = jnp.where(vpos, v_, 1.0)
@@ -487,11 +528,7 @@ class KellySpatioTemporal(CSFModel):
         wB, foundB = _compacted(search_b, needB, (c_, th_, v_, w_lo, w_hiB))
         foundB = needB & foundB
         w_star = jnp.where(foundA, wA, jnp.where(foundB, wB, 0.0))
-        ok = (foundA | foundB) & pos
-        g = lambda w: self._margin(c, jnp.exp(w), th, v)  # noqa: E731
-        w = implicit_root(g, w_star, mask=ok)
-        k = jnp.where(ok, jnp.exp(w), 0.0)
-        return jnp.where(pos & easy, k0, k)
+        return w_star, (foundA | foundB)
 
 
 # --------------------------------------------------------------------------- Rovamo-Virsu

@@ -19,13 +19,14 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
-__all__ = ["lambertw_m1", "bracketed_root", "largest_crossing", "implicit_root", "safe_div"]
+__all__ = ["lambertw_m1", "bracketed_root", "largest_crossing", "implicit_root", "implicit_solution", "safe_div"]
 
 _INV_E = 0.36787944117144233
 
@@ -166,3 +167,32 @@ def implicit_root(g: Callable, x_star, mask=None):
         num = jnp.where(mask, num, 0.0)
         dg = jnp.where(mask, dg, 1.0)
     return x_star - num / dg
+
+
+def implicit_solution(margin: Callable, x_star, mask, *args):
+    """:func:`implicit_root` without forward cost: ``x*`` whose derivative ``-(dg/dp . dp) / (dg/dx)``
+    (``g = margin(x, *args)``) is computed only when the result is differentiated (``jax.custom_jvp``).
+
+    ``margin`` must be a function of its arguments only (no closed-over arrays that need
+    derivatives): everything to differentiate through, model included, goes in ``args``. Where
+    ``mask`` is False the derivative is 0. ``x*`` is taken under ``stop_gradient``.
+    """
+    return _implicit_solution(margin, lax.stop_gradient(x_star), mask, *args)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _implicit_solution(margin, x_star, mask, *args):
+    return x_star
+
+
+@_implicit_solution.defjvp
+def _implicit_solution_jvp(margin, primals, tangents):
+    x_star, mask, *args = primals
+    dargs = tangents[2:]
+    _, dg = jax.jvp(lambda x: margin(x, *args), (x_star,), (jnp.ones_like(x_star),))
+    _, dgp = jax.jvp(lambda *a: margin(x_star, *a), tuple(args), tuple(dargs))
+    floor = jnp.sqrt(jnp.finfo(dg.dtype).tiny)
+    dg = jnp.where(jnp.abs(dg) > floor, dg, jnp.where(dg < 0, -floor, floor))
+    num = jnp.where(mask, dgp, 0.0)  # double where: no NaN leaks from masked-out elements
+    den = jnp.where(mask, dg, 1.0)
+    return x_star, jnp.broadcast_to(-num / den, jnp.shape(x_star)).astype(x_star.dtype)

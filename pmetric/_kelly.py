@@ -1,0 +1,312 @@
+"""Direct solve of the imperceptible distance for Kelly's (1979) spatio-temporal CSF.
+
+Used by :meth:`pmetric.KellySpatioTemporal.imperceptible_distance`. Notation: a change of contrast
+``c`` spanning ``theta`` deg and moving at ``v`` deg/s on the retina, seen from ``k`` times farther
+away, has frequency ``f = k / (2 theta)`` cycles/deg and velocity ``u = v / k`` deg/s; its temporal
+frequency ``f u = v / (2 theta)`` Hz does not depend on ``k``. With ``K(u) = a0 + a1 |log10(u/3)|^3``,
+``A = b v / (2 theta)`` (dimensionless) and ``s = k / v = 1 / u`` (s/deg), the margin
+``ln c - ln c_T`` (perceptible iff >= 0; the threshold below the peak frequency is the peak's) is,
+for ``k <= 10 v`` (``u >= 0.1``, below which Kelly's fit is clamped):
+
+* on the falling limb (``f >= f_peak(u)``, i.e. ``s >= s_p``, ``s_p = (2 - A) / (2 A)`` for A < 2, else
+  every s): ``h(s) = ln K + ln s - 2 A s + C_H``, ``C_H = ln c + 2 ln(A / b) - A``;
+* below the peak (``s < s_p``): ``p(t) = ln K + t - 2 ln(e^t + 2) + C_P`` with ``t = ln u``,
+  ``C_P = ln c - 2 ln b + 2 ln 2 - 2``: a fixed function of t, whose few local maxima are found once
+  per model (``kelly_structure``).
+
+**Concavity.** ``d2h/ds2 = (l1 + l2 - 1) / s^2`` with ``l1, l2`` the first two derivatives of
+``ln K`` in ``t = ln u``. They depend only on ``r = a1 / a0``: for Kelly's and Reddy's constants
+(r = 1.197) ``max(l1 + l2) = 0.921 < 1``, so ``h`` is strictly concave in s for every input.
+(``kelly_structure`` checks it for the model's constants; where it fails the caller uses its scan.)
+Newton's method started to the right of the largest root of a concave function never overshoots:
+every iterate is an upper bound of the root (a conservative distance), and the iterates decrease
+monotonically onto it. An iterate that reaches the lower end of the falling limb, or a point where
+``h`` increases, proves there is no root; so does the tangent bound ``h(s) <= h(s_n) + h'(s_n)(s -
+s_n)`` over ``[s_lo, s_n]``.
+
+Sources: Kelly, D. H. (1979) "Motion and vision II", JOSA 69(10):1340 (seed 001 Eq 4); Reddy (2001)
+(seed 000 Eq 2) for the refitted constants; Luebke & Hallen (2001) (seed 004 section 5.3) for the
+distance key.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+__all__ = ["kelly_structure", "kelly_fast", "kelly_slow", "rare_compacted"]
+
+_LN10 = math.log(10.0)
+_LN3 = math.log(3.0)
+_LN2 = math.log(2.0)
+T_MIN = math.log(0.1)  # ln of the lowest velocity of the fit (deg/s); u = v / k >= 0.1 <=> k <= 10 v
+NMAX = 4  # local maxima of p(t) kept (Kelly's constants have 2)
+_CONCAVE_LIMIT = 0.98  # l1 + l2 must stay below this (1 is the limit; the grid max is within 1e-4)
+
+
+def lnk(t, a0, a1):
+    """``ln K`` and its first two derivatives in ``t = ln u`` (``K = a0 + a1 |log10(u / 3)|^3``)."""
+    x = (t - _LN3) * (1.0 / _LN10)
+    ax = jnp.abs(x)
+    kk = a0 + a1 * ax * ax * ax
+    ik = 1.0 / kk
+    kx = 3.0 * a1 * x * ax * ik
+    l1 = kx * (1.0 / _LN10)
+    l2 = (6.0 * a1 * ax * ik - kx * kx) * (1.0 / _LN10**2)
+    return jnp.log(kk), l1, l2
+
+
+def kelly_structure(a0, a1, dtype):
+    """Per-model constants of the direct solve (scalars; cost independent of the batch).
+
+    Returns ``(ok, tmax, prev, pmax, pglob)``: ``ok`` is True when ``h`` is concave for every input
+    (``max(l1 + l2) < 0.98`` on a fine grid) and ``p`` has at most ``NMAX`` local maxima;
+    ``tmax`` (NMAX,) the local maxima of ``p`` on ``[T_MIN, ln 1e7]`` (``+inf`` pads), ``prev`` the
+    local minimum before each (``-inf`` if none), ``pmax`` the values of ``p - C_P`` there, ``pglob``
+    the largest value of ``p - C_P`` on ``[T_MIN, inf)``.
+    """
+    a0, a1 = (lax.stop_gradient(jnp.asarray(x, dtype)) for x in (a0, a1))
+    r = jnp.maximum(a1 / a0, 0.0)
+    s = r ** (1.0 / 3.0) / _LN10
+    y = jnp.linspace(0.0, 6.0, 4097, dtype=dtype)  # x = y r^(-1/3); l1 + l2 peaks near y = 0.76
+    q = 1.0 + y * y * y
+    worst = jnp.max(3.0 * s * y * y / q + s * s * (6.0 * y - 3.0 * y**4) / (q * q))
+    t = jnp.linspace(T_MIN, math.log(1e7), 4097, dtype=dtype)
+
+    def dp(t):
+        _, l1, _ = lnk(t, a0, a1)
+        return l1 + 1.0 - 2.0 / (1.0 + 2.0 * jnp.exp(-t))
+
+    up = dp(t) > 0
+    chg_max = up[:-1] & ~up[1:]
+    chg_min = ~up[:-1] & up[1:]
+    (imax,) = jnp.nonzero(chg_max, size=NMAX, fill_value=-1)
+    (imin,) = jnp.nonzero(chg_min, size=NMAX, fill_value=-1)
+
+    def refine(i):  # bisection on the sign change of p' inside grid cell i
+        lo, hi = t[jnp.maximum(i, 0)], t[jnp.maximum(i, 0) + 1]
+        s_lo = dp(lo) > 0
+
+        def body(_, st):
+            lo, hi = st
+            mid = 0.5 * (lo + hi)
+            same = (dp(mid) > 0) == s_lo
+            return jnp.where(same, mid, lo), jnp.where(same, hi, mid)
+
+        lo, hi = lax.fori_loop(0, 48, body, (lo, hi))
+        return jnp.where(i >= 0, 0.5 * (lo + hi), jnp.inf)
+
+    tmax, tmin = refine(imax), refine(imin)
+    prev = jnp.max(jnp.where(tmin[None, :] < tmax[:, None], tmin[None, :], -jnp.inf), axis=1)
+
+    def p0(t):
+        lk, _, _ = lnk(t, a0, a1)
+        return lk - t - 2.0 * jnp.log1p(2.0 * jnp.exp(-t))
+
+    fin = jnp.isfinite(tmax)
+    pmax = jnp.where(fin, p0(jnp.where(fin, tmax, 0.0)), -jnp.inf)
+    pglob = jnp.maximum(jnp.max(pmax), p0(jnp.asarray(T_MIN, dtype)))
+    ok = (worst < _CONCAVE_LIMIT) & (jnp.sum(chg_max) <= NMAX) & ~up[-1]
+    return ok, tmax, prev, pmax, pglob
+
+
+def _consts(a0, a1, b, c, th, v):
+    vs = jnp.where(v > 0, v, 1.0)
+    A = b * vs / (2.0 * th)
+    lnc = jnp.log(jnp.maximum(c, 1e-30))
+    lnA = jnp.log(A)
+    lnb = jnp.log(b)
+    ch = lnc + 2.0 * (lnA - lnb) - A
+    cp = lnc - 2.0 * lnb + (2.0 * _LN2 - 2.0)
+    below = A < 2.0
+    s_p = jnp.where(below, (2.0 - A) / (2.0 * A), 0.0)  # falling limb for s >= s_p
+    return vs, A, ch, cp, below, s_p
+
+
+def _h(s, A, ch, a0, a1):
+    """h(s), h'(s) and h''(s) on the falling limb (s = k / v)."""
+    t = -jnp.log(s)
+    lk, l1, l2 = lnk(t, a0, a1)
+    i_s = 1.0 / s
+    return lk - t - 2.0 * A * s + ch, (1.0 - l1) * i_s - 2.0 * A, (l1 + l2 - 1.0) * i_s * i_s
+
+
+def _p(t, cp, a0, a1):
+    """p(t), p'(t) below the peak (t = ln u = -ln s)."""
+    lk, l1, _ = lnk(t, a0, a1)
+    q = 2.0 * jnp.exp(-t)
+    return lk - t - 2.0 * jnp.log1p(q) + cp, l1 + 1.0 - 2.0 / (1.0 + q)
+
+
+def _p_bracket(t_lo, cp, struct, below, a0, a1):
+    """Where ``p`` first reaches 0 on ``[t_lo, inf)``: an increasing bracket ``[a, b]`` (in t), and
+    whether it exists. ``p``'s supremum there is ``max(p(t_lo), local maxima beyond t_lo)``."""
+    _, tmax, prev, pmax, _ = struct
+    p_lo, _ = _p(t_lo, cp, a0, a1)
+    a = jnp.full_like(t_lo, jnp.inf)
+    b = jnp.full_like(t_lo, jnp.inf)
+    for j in reversed(range(NMAX)):
+        cond = (tmax[j] > t_lo) & (pmax[j] + cp >= 0)
+        a = jnp.where(cond, jnp.maximum(prev[j], t_lo), a)
+        b = jnp.where(cond, tmax[j], b)
+    at_lo = p_lo >= 0
+    a = jnp.where(at_lo, t_lo, a)
+    b = jnp.where(at_lo, t_lo, b)
+    return a, b, below & (at_lo | jnp.isfinite(b))
+
+
+def _s_lo(a0, a1, A, s_p):
+    """Lower end of the falling-limb search: the largest root of h is >= its maximum s*, and
+    ``s* = (1 - l1(s*)) / (2 A) >= (1 - max l1) / (2 A)``, ``max l1 = r^(1/3) 2^(2/3) / ln 10``."""
+    m1 = jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+    return jnp.minimum(jnp.maximum(s_p, (1.0 - m1) / (2.0 * A)), 10.0)
+
+
+def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
+    """Elementwise direct solve (under stop_gradient; v > 0, not perceptible at k = 10 v).
+
+    ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most ``s = 10``). Returns one array: ``ln k`` of the
+    largest perceptible ``k <= 10 v`` where found, ``-inf`` where nothing below ``10 v`` is
+    perceptible, NaN where this pass cannot settle it (Newton not yet converged to 1e-5 relative
+    without a no-root certificate, or a possible root below the peak frequency): the caller solves
+    those with :func:`kelly_slow`.
+    """
+    tiny = jnp.finfo(c.dtype).tiny
+    vs, A, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
+    s_lo = _s_lo(a0, a1, A, s_p)
+    def newton(sv):
+        g, dg, _ = _h(sv, A, ch, a0, a1)
+        dg = jnp.minimum(dg, -tiny)
+        step = jnp.where(g < 0, g / dg, 0.0)
+        return jnp.maximum(sv - step, s_lo), g, dg, step
+
+    # start: the root of a linear majorant of h (ln K <= its larger end value on [s_lo, 10], ln s <=
+    # its tangent at 2 / A), an upper bound of the largest root: Newton from there stays monotone
+    l_top = jnp.maximum(lnk(jnp.asarray(T_MIN, c.dtype), a0, a1)[0], lnk(-jnp.log(s_lo), a0, a1)[0])
+    lin = l_top + jnp.log(2.0 / A) - 1.0 + ch
+    s0 = jnp.clip(lin / (1.5 * A), s_lo, 10.0)
+    s_prev, step0 = s0, jnp.full_like(c, 10.0)
+    for _ in range(n_newton - 1):
+        s_prev, _, _, step0 = newton(s_prev)
+        # materialize each iterate: XLA would otherwise re-compute the unrolled chain per consumer
+        # (a fori_loop would do, but XLA on CPU runs loop bodies on one thread)
+        s_prev, step0 = lax.optimization_barrier((s_prev, step0))
+    sv, g, dg, step = newton(s_prev)  # g, dg at s_prev: the certificates use the tangent there
+    # no root on the falling limb: h < 0 on (s_prev, 10] (passed by monotone Newton) and, h being
+    # concave, below its tangent at s_prev on [s_lo, s_prev]: negative if h rises there or the
+    # tangent is negative at s_lo
+    none_h = (s_p >= 10.0) | ((g < 0) & ((dg >= 0) | (g - dg * (s_prev - s_lo) < 0)))
+    # remaining error: ~step^2 / previous step while Newton converges quadratically (<= step always)
+    conv = (g >= 0) | (jnp.minimum(step, step * step / jnp.maximum(step0, tiny)) <= 1e-5 * sv)
+    found_h = ~none_h & conv
+    undecided = ~none_h & ~conv
+    # below the peak (only if the falling limb has no root): p < 0 at t_lo (there p = h(s_p) < 0, or
+    # t_lo = T_MIN where the change is not perceptible), so a root needs a later local maximum >= 0
+    _, tmax, _, pmax, _ = struct
+    s_top = jnp.minimum(jnp.where(below, s_p, 10.0), 10.0)  # t_lo = -ln(s_top)
+    has_p = jnp.zeros_like(below)
+    for j in range(NMAX):
+        has_p = has_p | ((jnp.exp(-tmax[j]) < s_top) & (pmax[j] + cp >= 0))
+    rare = undecided | (below & none_h & has_p)
+    # one output array (XLA on CPU would otherwise materialize the shared intermediates once per
+    # output): ln k where found, -inf where there is no root, NaN where the slow solver must decide
+    return jnp.where(rare, jnp.nan, jnp.where(found_h, jnp.log(vs * sv), -jnp.inf))
+
+
+def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
+    """Elementwise exact solve with certified brackets (slow: for rare elements and for tests).
+
+    Falling limb: the maximum of the concave ``h`` on ``[s_lo, 10]`` is located by bisection on
+    ``h'``; if it is >= 0 the largest root is bracketed between it and 10 and found by safeguarded
+    Newton. Otherwise, below the peak: the first increasing stretch of ``p`` that reaches 0 beyond
+    ``t_lo`` (from the per-model maxima) brackets the smallest ``t`` (largest k), found likewise.
+    Returns ``(w, found)``.
+    """
+    tiny = jnp.finfo(c.dtype).tiny
+    vs, A, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
+    has_h = s_p < 10.0
+    lo = jnp.where(has_h, _s_lo(a0, a1, A, s_p), 1.0)
+    hi = jnp.full_like(c, 10.0)
+
+    def gbis(_, st):  # h' decreases (h concave): geometric bisection for h' = 0 on [lo, 10]
+        lo, hi = st
+        mid = jnp.sqrt(lo * hi)
+        _, d, _ = _h(mid, A, ch, a0, a1)
+        return jnp.where(d > 0, mid, lo), jnp.where(d > 0, hi, mid)
+
+    s_m, _ = lax.fori_loop(0, n_iter, gbis, (jnp.minimum(lo, hi), hi))
+    hm, _, _ = _h(s_m, A, ch, a0, a1)
+    found_h = has_h & (hm >= 0)
+
+    def newton_h(_, st):  # safeguarded Newton for the root in [s_m, 10]: h(lo) >= 0 > h(hi)
+        lo, hi, x = st
+        g, dg, _ = _h(x, A, ch, a0, a1)
+        pos = g >= 0
+        lo, hi = jnp.where(pos, x, lo), jnp.where(pos, hi, x)
+        xn = x - g / jnp.minimum(dg, -tiny)
+        ok = (xn > lo) & (xn < hi)
+        return lo, hi, jnp.where(ok, xn, 0.5 * (lo + hi))
+
+    lo_h, hi_h, _ = lax.fori_loop(0, n_iter, newton_h, (s_m, hi, hi))
+    t_lo = jnp.maximum(-jnp.log(jnp.where(below & (s_p > 0), s_p, 10.0)), T_MIN)
+    a, bb, has_p = _p_bracket(t_lo, cp, struct, below, a0, a1)
+    has_p = has_p & ~found_h
+    a = jnp.where(has_p, a, 0.0)
+    bb = jnp.where(has_p, bb, 0.0)
+
+    def newton_p(_, st):  # p increasing on [a, b], p(a) < 0 <= p(b): smallest t with p >= 0
+        lo, hi, x = st
+        g, dg = _p(x, cp, a0, a1)
+        pos = g >= 0
+        lo, hi = jnp.where(pos, lo, x), jnp.where(pos, x, hi)
+        xn = x - g / jnp.maximum(dg, tiny)
+        ok = (xn > lo) & (xn < hi)
+        return lo, hi, jnp.where(ok, xn, 0.5 * (lo + hi))
+
+    _, hi_p, _ = lax.fori_loop(0, n_iter, newton_p, (a, bb, bb))
+    w = jnp.log(vs) + jnp.where(found_h, jnp.log(lo_h), -hi_p)
+    return w, found_h | has_p
+
+
+def rare_compacted(fn, mask, args, block: int = 16, max_blocks: int | None = None):
+    """``fn(*args)`` (elementwise, returning ``(values, flags)``) evaluated only where ``mask``.
+
+    Two-level compaction (flat XLA compaction of a large array is slow on CPU): the blocks of
+    ``block`` elements holding a masked element are gathered (at most ``max_blocks``, static), ``fn``
+    runs on them; with more such blocks it runs on everything, with none not at all (``lax.switch``).
+    Elsewhere the result is ``(0, False)``. Default ``max_blocks``: room for 1 element in 2048, ten
+    times the rate at which :func:`kelly_fast` leaves elements unsettled on random inputs."""
+    shape = mask.shape
+    m = mask.reshape(-1)
+    n = m.size
+    nblk = -(-n // block)
+    pad = nblk * block - n
+    flat = [jnp.pad(jnp.broadcast_to(a, shape).reshape(-1), (0, pad)) for a in args]
+    mb = jnp.pad(m, (0, pad)).reshape(nblk, block)
+    hit = mb.any(axis=1)
+    nb = min(max(64, -(-n // 2048)) if max_blocks is None else max_blocks, nblk)
+    zeros = (jnp.zeros((n,), flat[0].dtype), jnp.zeros((n,), bool))
+
+    def full(_):
+        w, ok = fn(*(a[:n] for a in flat))
+        return jnp.where(m, w, 0.0), ok & m
+
+    def compact(_):
+        (bi,) = jnp.nonzero(hit, size=nb, fill_value=nblk)
+        bi_c = jnp.minimum(bi, nblk - 1)
+        sub = [a.reshape(nblk, block)[bi_c] for a in flat]
+        w, ok = fn(*sub)
+        ok = ok & mb[bi_c] & (bi < nblk)[:, None]
+        idx = (bi[:, None] * block + jnp.arange(block)[None, :]).reshape(-1)
+        idx = jnp.where(ok.reshape(-1), idx, n + pad)  # only the solved elements are written
+        w_full = jnp.zeros((n + pad,), flat[0].dtype).at[idx].set(w.reshape(-1), mode="drop")
+        ok_full = jnp.zeros((n + pad,), bool).at[idx].set(True, mode="drop")
+        return w_full[:n], ok_full[:n]
+
+    count = hit.sum()
+    branch = jnp.where(count == 0, 0, jnp.where(count <= nb, 1, 2))
+    w, ok = lax.switch(branch, [lambda _: zeros, compact, full], None)
+    return w.reshape(shape), ok.reshape(shape)
