@@ -329,9 +329,10 @@ def _kelly_c0():
 _KELLY_C0 = _kelly_c0()  # 2.2300
 
 
-def _kelly_margin_w(w, model, c, theta, v):
-    """The fused margin of :class:`KellySpatioTemporal` at ``k = exp(w)`` (for implicit derivatives)."""
-    return model._margin(c, jnp.exp(w), theta, v)
+def _kelly_margin_k(k, model, c, theta, v):
+    """The fused margin of :class:`KellySpatioTemporal` at distance multiple ``k`` (for implicit
+    derivatives)."""
+    return model._margin(c, k, theta, v)
 
 
 class KellySpatioTemporal(CSFModel):
@@ -462,24 +463,24 @@ class KellySpatioTemporal(CSFModel):
                 struct = kelly_structure(self.a0, self.a1, dtype)
 
         def direct(_):
-            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, th_, v_, struct)
+            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, th_, v_, struct)  # k (0: none; NaN: undecided)
             rare = jnp.isnan(w) & need
-            found = w > -jnp.inf
+            found = w > 0
             slow = lambda c1, t1, v1: kelly_slow(ms.a0, ms.a1, ms.b, c1, t1, v1, struct)  # noqa: E731
             w_r, found_r = rare_compacted(slow, rare, (c_, th_, v_))
             return jnp.where(rare, w_r, w), jnp.where(rare, found_r, found) & need
 
         def scan(_):
-            return ms._distance_scan(c_, th_, v_, easy)
+            w, found = ms._distance_scan(c_, th_, v_, easy)
+            return jnp.exp(w), found
 
         if _is_tracer(struct[0]):
-            w_star, found = lax.cond(struct[0], direct, scan, None)
+            k_star, found = lax.cond(struct[0], direct, scan, None)
         else:  # XLA on CPU runs the branches of a cond on one thread: avoid it when possible
-            w_star, found = direct(None) if bool(struct[0]) else scan(None)
+            k_star, found = direct(None) if bool(struct[0]) else scan(None)
         ok = found & pos
-        w = implicit_solution(_kelly_margin_w, jnp.where(ok, w_star, 0.0), ok, self, c, th, v)
-        k = jnp.where(ok, jnp.exp(w), 0.0)
-        return jnp.where(pos & easy, k0, k)
+        k = implicit_solution(_kelly_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, v)
+        return jnp.where(pos & easy, k0, jnp.where(ok, k, 0.0))
 
     def _distance_scan(self, c_, th_, v_, easy):
         """The general solver (any a0, a1): monotone Newton where the margin is concave in ln k, a

@@ -123,7 +123,7 @@ def _consts(a0, a1, b, c, th, v):
     cp = lnc - 2.0 * lnb + (2.0 * _LN2 - 2.0)
     below = A < 2.0
     s_p = jnp.where(below, (2.0 - A) / (2.0 * A), 0.0)  # falling limb for s >= s_p
-    return vs, A, ch, cp, below, s_p
+    return vs, A, lnA, ch, cp, below, s_p
 
 
 def _h(s, A, ch, a0, a1):
@@ -168,14 +168,14 @@ def _s_lo(a0, a1, A, s_p):
 def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
     """Elementwise direct solve (under stop_gradient; v > 0, not perceptible at k = 10 v).
 
-    ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most ``s = 10``). Returns one array: ``ln k`` of the
-    largest perceptible ``k <= 10 v`` where found, ``-inf`` where nothing below ``10 v`` is
-    perceptible, NaN where this pass cannot settle it (Newton not yet converged to 1e-5 relative
+    ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most ``s = 10``).
+    Returns one array: the largest perceptible ``k <= 10 v`` where found, 0 where nothing below
+    ``10 v`` is perceptible, NaN where this pass cannot settle it (Newton not yet converged to 1e-5 relative
     without a no-root certificate, or a possible root below the peak frequency): the caller solves
     those with :func:`kelly_slow`.
     """
     tiny = jnp.finfo(c.dtype).tiny
-    vs, A, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
+    vs, A, lnA, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
     s_lo = _s_lo(a0, a1, A, s_p)
     def newton(sv):
         g, dg, _ = _h(sv, A, ch, a0, a1)
@@ -183,10 +183,13 @@ def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
         step = jnp.where(g < 0, g / dg, 0.0)
         return jnp.maximum(sv - step, s_lo), g, dg, step
 
-    # start: the root of a linear majorant of h (ln K <= its larger end value on [s_lo, 10], ln s <=
-    # its tangent at 2 / A), an upper bound of the largest root: Newton from there stays monotone
-    l_top = jnp.maximum(lnk(jnp.asarray(T_MIN, c.dtype), a0, a1)[0], lnk(-jnp.log(s_lo), a0, a1)[0])
-    lin = l_top + jnp.log(2.0 / A) - 1.0 + ch
+    # start: the root of a linear majorant of h (ln K <= its larger end value on [s_lo, 10], which
+    # lies in t = ln(1/s) <= ln(2 A / (1 - max l1)); ln s <= its tangent at 2 / A), an upper bound
+    # of the largest root: Newton from there stays monotone
+    m1 = jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+    t_far = jnp.maximum(lnA + jnp.log(2.0 / (1.0 - m1)), T_MIN)
+    l_top = jnp.maximum(lnk(jnp.asarray(T_MIN, c.dtype), a0, a1)[0], lnk(t_far, a0, a1)[0])
+    lin = l_top + (_LN2 - lnA) - 1.0 + ch
     s0 = jnp.clip(lin / (1.5 * A), s_lo, 10.0)
     s_prev, step0 = s0, jnp.full_like(c, 10.0)
     for _ in range(n_newton - 1):
@@ -212,8 +215,8 @@ def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
         has_p = has_p | ((jnp.exp(-tmax[j]) < s_top) & (pmax[j] + cp >= 0))
     rare = undecided | (below & none_h & has_p)
     # one output array (XLA on CPU would otherwise materialize the shared intermediates once per
-    # output): ln k where found, -inf where there is no root, NaN where the slow solver must decide
-    return jnp.where(rare, jnp.nan, jnp.where(found_h, jnp.log(vs * sv), -jnp.inf))
+    # output): k where found, 0 where there is no root, NaN where the slow solver must decide
+    return jnp.where(rare, jnp.nan, jnp.where(found_h, vs * sv, 0.0))
 
 
 def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
@@ -223,10 +226,10 @@ def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
     ``h'``; if it is >= 0 the largest root is bracketed between it and 10 and found by safeguarded
     Newton. Otherwise, below the peak: the first increasing stretch of ``p`` that reaches 0 beyond
     ``t_lo`` (from the per-model maxima) brackets the smallest ``t`` (largest k), found likewise.
-    Returns ``(w, found)``.
+    Returns ``(k, found)``.
     """
     tiny = jnp.finfo(c.dtype).tiny
-    vs, A, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
+    vs, A, _, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
     has_h = s_p < 10.0
     lo = jnp.where(has_h, _s_lo(a0, a1, A, s_p), 1.0)
     hi = jnp.full_like(c, 10.0)
@@ -267,8 +270,8 @@ def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
         return lo, hi, jnp.where(ok, xn, 0.5 * (lo + hi))
 
     _, hi_p, _ = lax.fori_loop(0, n_iter, newton_p, (a, bb, bb))
-    w = jnp.log(vs) + jnp.where(found_h, jnp.log(lo_h), -hi_p)
-    return w, found_h | has_p
+    k = vs * jnp.where(found_h, lo_h, jnp.exp(-hi_p))
+    return k, found_h | has_p
 
 
 def rare_compacted(fn, mask, args, block: int = 16, max_blocks: int | None = None):
