@@ -115,7 +115,9 @@ class CSFModel(eqx.Module):
         A model built under ``jax_enable_x64`` (float64 fields) then used without it (or on float32
         inputs) computes in the inputs' dtype instead of mixing dtypes (which warns). Gradients flow
         through the cast. A no-op when the dtypes already agree."""
-        dtype = jnp.result_type(*(jnp.asarray(x).dtype for x in xs if x is not None), float)
+        # the arrays themselves, not their .dtype: a weakly typed input (a Python scalar) must not
+        # promote float32 inputs to the model's float64 (jit loop carries would then mix dtypes)
+        dtype = jnp.result_type(*(x for x in xs if x is not None), float)
 
         def cast(x):
             if eqx.is_inexact_array(x) and x.dtype != dtype:

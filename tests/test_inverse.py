@@ -210,3 +210,18 @@ def test_fast_closed_forms_float32_match_float64():
             1.0, F / (2 * m.csf.threshold_frequency(1.0)), e))(F))
         assert np.all(np.abs(k * k * (k - ku) + k3 * e**3) <= 1e-9 * ku**3)
         assert np.all(k >= (2 * k3) ** (1 / 3) * e * (1 - 1e-6))
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_float32_input_with_python_scalars_under_x64(name, x64):
+    """A float64-built model, a float32 contrast and Python-scalar theta, e, v: the computation runs in
+    float32 (weak scalars do not promote it) and the gradient w.r.t. the model's constants works
+    (it used to fail: the model was cast to float64 and mixed dtypes in the solver loops)."""
+    m = MODELS[name]
+    k = m.imperceptible_distance(jnp.float32(0.5), 0.2, 3.0, 40.0)
+    assert k.dtype == jnp.float32
+    g = jax.grad(lambda mm: mm.imperceptible_distance(jnp.float32(0.5), 0.2, 3.0, 40.0))(m)
+    leaves = [x for x in jax.tree_util.tree_leaves(g) if hasattr(x, "dtype")]
+    assert leaves and all(np.isfinite(np.asarray(x)).all() for x in leaves)
+    k64 = float(m.imperceptible_distance(0.5, 0.2, 3.0, 40.0))
+    assert float(k) == pytest.approx(k64, rel=1e-4)
