@@ -30,7 +30,7 @@ from jax import lax
 
 from ._base import LOG_CT_MAX, CSFModel, _is_tracer, check_inputs
 from ._csf import _clenshaw, _param
-from ._inverse import implicit_root, largest_crossing
+from ._inverse import implicit_root, implicit_solution, largest_crossing
 
 __all__ = ["ReddyAcuity", "SmoothReddyAcuity"]
 
@@ -187,8 +187,8 @@ class ReddyAcuity(CSFModel):
         iterative candidate (``_NEWTON_STEPS`` Newton steps) only for M's outer piece when ``m_scale < 4``.
         Smooth model: the generic largest-crossing scan (81 points over 40 e-folds below
         ``2 theta min(xi, g_max)``, the upper bound of every answer) refined by safeguarded Newton.
-        Gradients: implicit-function theorem on ``ln(2 theta H') = ln k`` (exact model: a ``custom_jvp``
-        whose tangent is ``-(drho/dp . dp) / (drho/dln k)``, so the forward pass is the solve alone).
+        Gradients: implicit-function theorem on ``ln(2 theta H') = ln k`` (exact model:
+        :func:`implicit_solution`, so the forward pass is the solve alone).
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
@@ -397,46 +397,34 @@ def _outer_candidates(y, x, L, r, vpos, y5, gmax, ga, gmin, ms, s, a_hi, a_lo, s
     return jnp.maximum(y, jnp.where(need & ok6, y6, 0.0))
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _exact_k(mode, model, c, theta, e, v):
-    """``model._exact_distance`` (exact ReddyAcuity) with the implicit-function derivative.
+    """``model._exact_distance`` (exact ReddyAcuity) with the implicit-function derivative of
+    ``rho(ln k; p) = ln(2 theta H'(v/k, e/k)) - ln k = 0`` (:func:`implicit_solution`: the forward pass
+    is the solve alone; c carries no derivative).
 
     ``mode``: ``(outer, far)`` from ``model._solve_mode()``, or None (traced constants): then
     ``lax.switch`` picks at run time among (False, False), (False, True) and (True, True).
     """
     if mode is not None:
-        return model._exact_distance(c, theta, e, v, *mode)
-    dtype = theta.dtype
-    gmax, _, gsl, _, ms, _, _ = (lax.stop_gradient(x) for x in model._consts(dtype))
-    outer = jnp.any(ms < 4.0)
-    far = jnp.any(gmax * math.log(10.0) / gsl > _U_FAR)
-    index = jnp.where(outer, 2, jnp.where(far, 1, 0))
-    branches = [functools.partial(model._exact_distance, outer=o, far=f)
-                for o, f in ((False, False), (False, True), (True, True))]
-    return lax.switch(index, [lambda ops, fn=fn: fn(*ops) for fn in branches], (c, theta, e, v))
-
-
-@_exact_k.defjvp
-def _exact_k_jvp(mode, primals, tangents):
-    """Implicit function theorem on ``rho(ln k; p) = ln(2 theta H'(v/k, e/k)) - ln k = 0``:
-    ``dk = -k (drho/dp . dp) / (drho/dln k)`` where k > 0, 0 elsewhere (c carries no derivative). The
-    forward pass is the solve alone (no evaluation of rho); drho/dln k is held constant under further
-    differentiation, as in :func:`implicit_root`."""
-    model, c, theta, e, v = primals
-    dmodel, _, dtheta, de, dv = tangents
-    k = _exact_k(mode, model, c, theta, e, v)
+        k = model._exact_distance(c, theta, e, v, *mode)
+    else:
+        dtype = theta.dtype
+        gmax, _, gsl, _, ms, _, _ = (lax.stop_gradient(x) for x in model._consts(dtype))
+        outer = jnp.any(ms < 4.0)
+        far = jnp.any(gmax * math.log(10.0) / gsl > _U_FAR)
+        index = jnp.where(outer, 2, jnp.where(far, 1, 0))
+        branches = [functools.partial(model._exact_distance, outer=o, far=f)
+                    for o, f in ((False, False), (False, True), (True, True))]
+        k = lax.switch(index, [lambda ops, fn=fn: fn(*ops) for fn in branches], (c, theta, e, v))
     ok = k > 0
-    w = jnp.log(jnp.where(ok, k, 1.0))
-    pos = theta > 0
-    th = jnp.where(pos, theta, 1.0)
-    dth = jnp.where(pos, dtheta, 0.0)
-    _, d_p = jax.jvp(lambda m, t, e_, v_: m._rho(w, t, e_, v_), (model, th, e, v), (dmodel, dth, de, dv))
-    _, d_w = jax.jvp(lambda w_: model._rho(w_, th, e, v), (w,), (jnp.ones_like(w),))
-    d_w = lax.stop_gradient(d_w)  # as in implicit_root (log_acuity's 2nd derivative is NaN at v = 0)
-    floor = jnp.sqrt(jnp.finfo(d_w.dtype).tiny)  # as in implicit_root: 1/floor^2 stays finite
-    d_w = jnp.where(jnp.abs(d_w) > floor, d_w, jnp.where(d_w < 0, -floor, floor))
-    d_w = jnp.where(ok, d_w, 1.0)
-    return k, jnp.where(ok, -k * d_p / d_w, 0.0)
+    th = jnp.where(theta > 0, theta, 1.0)
+    k = implicit_solution(_rho_k, jnp.where(ok, k, 1.0), ok, model, th, e, v)
+    return jnp.where(ok, k, 0.0)
+
+
+def _rho_k(k, model, theta, e, v):
+    """``rho`` at distance multiple ``k`` (for the implicit derivative)."""
+    return model._rho(jnp.log(k), theta, e, v)
 
 
 class SmoothReddyAcuity(ReddyAcuity):

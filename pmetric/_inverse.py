@@ -175,7 +175,8 @@ def implicit_solution(margin: Callable, x_star, mask, *args):
 
     ``margin`` must be a function of its arguments only (no closed-over arrays that need
     derivatives): everything to differentiate through, model included, goes in ``args``. Where
-    ``mask`` is False the derivative is 0. ``x*`` is taken under ``stop_gradient``.
+    ``mask`` is False the derivative is 0. ``x*`` is taken under ``stop_gradient``. As in
+    :func:`implicit_root`, ``dg/dx`` is held constant under further differentiation.
     """
     return _implicit_solution(margin, lax.stop_gradient(x_star), mask, *args)
 
@@ -190,6 +191,7 @@ def _implicit_solution_jvp(margin, primals, tangents):
     x_star, mask, *args = primals
     dargs = tangents[2:]
     _, dg = jax.jvp(lambda x: margin(x, *args), (x_star,), (jnp.ones_like(x_star),))
+    dg = lax.stop_gradient(dg)
     _, dgp = jax.jvp(lambda *a: margin(x_star, *a), tuple(args), tuple(dargs))
     floor = jnp.sqrt(jnp.finfo(dg.dtype).tiny)
     dg = jnp.where(jnp.abs(dg) > floor, dg, jnp.where(dg < 0, -floor, floor))

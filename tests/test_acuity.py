@@ -356,7 +356,8 @@ def test_gradients_finite_on_random_inputs_float32():
 
 def test_exact_distance_is_one_loop_free_pass():
     """Reddy's constants (concrete): the solve has no loop, cond or switch (it fuses into a few
-    elementwise kernels); under differentiation the forward pass is the same solve (custom_jvp)."""
+    elementwise kernels); under differentiation the forward pass is the same solve
+    (implicit_solution, a custom_jvp)."""
     m = pm.ReddyAcuity(xi=30.0)
     x = jnp.ones(8, jnp.float32)
     jaxpr = str(jax.make_jaxpr(lambda c, t, e, v: m.imperceptible_distance(c, t, e, v))(x, x, x, x))
