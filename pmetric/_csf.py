@@ -293,33 +293,6 @@ _KELLY_CONSTANTS = {
 }
 
 
-def _compacted(fn, mask, args, frac: int = 4):
-    """``fn(*args)`` (elementwise, returning ``(values, flags)``) evaluated only where ``mask``.
-
-    The masked elements are gathered into a buffer of ``size // frac`` (static) and ``fn`` runs on it;
-    when more elements are masked, ``fn`` runs on the whole array; when none, not at all (lax.cond).
-    Elsewhere the result is ``(0, False)``."""
-    shape = mask.shape
-    flat = [jnp.broadcast_to(a, shape).reshape(-1) for a in args]
-    m = mask.reshape(-1)
-    n = m.size
-    nb = max(1, n // frac)
-    zeros = (jnp.zeros((n,), flat[0].dtype), jnp.zeros((n,), bool))
-
-    def full(_):
-        return fn(*flat)
-
-    def compact(_):
-        (idx,) = jnp.nonzero(m, size=nb, fill_value=n)  # padding: out of range, dropped below
-        w, ok = fn(*(a[jnp.minimum(idx, n - 1)] for a in flat))
-        return zeros[0].at[idx].set(w, mode="drop"), zeros[1].at[idx].set(ok, mode="drop")
-
-    count = m.sum()
-    branch = jnp.where(count == 0, 0, jnp.where(count <= nb, 1, 2))
-    w, ok = lax.switch(branch, [lambda _: zeros, compact, full], None)
-    return w.reshape(shape), ok.reshape(shape)
-
-
 def _kelly_c0():
     """max over t > 0 of 6 t / (1 + t^3) - 9 t^4 / (1 + t^3)^2 (curvature bound of ln(a0 + a1 |x|^3))."""
     t = np.linspace(1e-4, 5.0, 200001)
@@ -526,7 +499,9 @@ class KellySpatioTemporal(CSFModel):
             w, found, _sat = largest_crossing(g1, lo1, hi1, n_grid=129, n_iter=40)
             return w, found
 
-        wB, foundB = _compacted(search_b, needB, (c_, th_, v_, w_lo, w_hiB))
+        # up to a quarter of the batch gathered element by element (the whole batch when more)
+        wB, foundB = rare_compacted(search_b, needB, (c_, th_, v_, w_lo, w_hiB), block=1,
+                                    max_blocks=max(1, c_.size // 4))
         foundB = needB & foundB
         w_star = jnp.where(foundA, wA, jnp.where(foundB, wB, 0.0))
         return w_star, (foundA | foundB)

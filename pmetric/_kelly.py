@@ -158,10 +158,15 @@ def _p_bracket(t_lo, cp, struct, below, a0, a1):
     return a, b, below & (at_lo | jnp.isfinite(b))
 
 
+def _max_l1(a0, a1):
+    """``max |l1| = r^(1/3) 2^(2/3) / ln 10`` (``r = a1 / a0``; at ``|y|^3 = 2``, y = r^(1/3) x)."""
+    return jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+
+
 def _s_lo(a0, a1, A, s_p):
     """Lower end of the falling-limb search: the largest root of h is >= its maximum s*, and
-    ``s* = (1 - l1(s*)) / (2 A) >= (1 - max l1) / (2 A)``, ``max l1 = r^(1/3) 2^(2/3) / ln 10``."""
-    m1 = jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+    ``s* = (1 - l1(s*)) / (2 A) >= (1 - max l1) / (2 A)``."""
+    m1 = _max_l1(a0, a1)
     return jnp.minimum(jnp.maximum(s_p, (1.0 - m1) / (2.0 * A)), 10.0)
 
 
@@ -186,7 +191,7 @@ def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
     # start: the root of a linear majorant of h (ln K <= its larger end value on [s_lo, 10], which
     # lies in t = ln(1/s) <= ln(2 A / (1 - max l1)); ln s <= its tangent at 2 / A), an upper bound
     # of the largest root: Newton from there stays monotone
-    m1 = jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+    m1 = _max_l1(a0, a1)
     t_far = jnp.maximum(lnA + jnp.log(2.0 / (1.0 - m1)), T_MIN)
     l_top = jnp.maximum(lnk(jnp.asarray(T_MIN, c.dtype), a0, a1)[0], lnk(t_far, a0, a1)[0])
     lin = l_top + (_LN2 - lnA) - 1.0 + ch
