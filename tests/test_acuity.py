@@ -13,6 +13,10 @@ from hypothesis import strategies as st
 
 import pmetric as pm
 
+from _definition import check_distance_definition  # noqa: E402
+from _definition import distance as _dist  # noqa: E402
+from _definition import perceptible as _perc  # noqa: E402
+
 
 def _g_printed(v):
     """Seed 000 Eq 4, G(v) exactly as printed (three pieces)."""
@@ -33,8 +37,6 @@ with jax.enable_x64(True):
 MODELS = {"exact": EXACT, "capped": CAPPED, "smooth": SMOOTH, "smooth_capped": SMOOTH_CAPPED}
 
 _acuity = jax.jit(lambda m, v, e: m.acuity(v, e))
-_perc = jax.jit(lambda m, c, f, e, v: m.is_perceptible(c, f, e, v))
-_dist = jax.jit(lambda m, c, t, e, v: m.imperceptible_distance(c, t, e, v))
 
 
 def test_printed_pieces_and_knots(x64):
@@ -102,19 +104,12 @@ _KK = np.geomspace(1e-6, 1e4, 6001)
 )
 def test_distance_definition_brute_force(name, c, theta, e, v):
     """The largest perceptible k of a dense k grid lies at or just below the answer."""
-    m = MODELS[name]
-    with jax.enable_x64(True):
-        k = float(_dist(m, c, theta, e, v))
-        kk = np.concatenate([_KK, k * (1 + np.geomspace(1e-7, 1.0, 500))]) if k > 0 else _KK
-        p = np.asarray(_perc(m, c, kk / (2 * theta), e / kk, v / kk))
-        assert not p[kk > k * (1 + 1e-7)].any(), (k, kk[p].max())
-        if k > 0:
-            ks = k * (1 - 1e-7)
-            assert bool(_perc(m, c, ks / (2 * theta), e / ks, v / ks)), k
-            # the grid finds nothing perceptible more than one grid step (0.4 %) below either
-            assert kk[p].max() >= k * (1 - 4e-3)
-        else:
-            assert not p.any() or c == 0.0
+    k, kk, p = check_distance_definition(MODELS[name], c, theta, e, v, _KK, rel=1e-7, n_fine=500)
+    if k > 0:
+        # the grid finds nothing perceptible more than one grid step (0.4 %) below either
+        assert kk[p].max() >= k * (1 - 4e-3)
+    else:
+        assert not p.any() or c == 0.0
 
 
 def test_exact_distance_vectorized_vs_brute_force(dtype):

@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 import pmetric as pm
 from pmetric._base import CSFModel
 
+from _definition import check_distance_definition  # noqa: E402
+
 FACTORIES = {
     "manos": lambda: pm.ManosSakrison(),
     "kelly_abstract": lambda: pm.KellyAbstract(),
@@ -71,8 +73,6 @@ def test_threshold_frequency_inverts_falling_limb(name, x64):
 
 
 _KK = np.geomspace(1e-4, 1e5, 4001)
-_perc = jax.jit(lambda m, c, f, e, v: m.is_perceptible(c, f, e, v))
-_dist = jax.jit(lambda m, c, t, e, v: m.imperceptible_distance(c, t, e, v))
 
 
 @pytest.mark.parametrize("name", list(MODELS))
@@ -85,15 +85,7 @@ _dist = jax.jit(lambda m, c, t, e, v: m.imperceptible_distance(c, t, e, v))
 )
 def test_imperceptible_distance_definition(name, c, theta, e, v):
     """Brute force: coarse grid over 9 decades of k plus a fine grid just above k."""
-    m = MODELS[name]
-    with jax.enable_x64(True):
-        k = float(_dist(m, c, theta, e, v))
-        kk = np.concatenate([_KK, k * (1 + np.geomspace(1e-4, 1.0, 2000))]) if k > 0 else _KK
-        p = np.asarray(_perc(m, c, kk / (2 * theta), e / kk, v / kk))
-        assert not p[kk > k * (1 + 1e-4)].any(), (k, kk[p].max())  # nothing beyond k is perceptible
-        if k > 0:
-            ks = k * (1 - 1e-4)
-            assert bool(_perc(m, c, ks / (2 * theta), e / ks, v / ks)), k  # perceptible at k
+    check_distance_definition(MODELS[name], c, theta, e, v, _KK, rel=1e-4, n_fine=2000)
 
 
 @pytest.mark.parametrize("name", ["manos", "kelly_abstract", "eccentric_cubic", "kelly1979"])
