@@ -37,6 +37,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from ._inverse import bracketed_root
+
 __all__ = ["kelly_structure", "kelly_fast", "kelly_slow", "rare_compacted"]
 
 _LN10 = math.log(10.0)
@@ -229,11 +231,10 @@ def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
 
     Falling limb: the maximum of the concave ``h`` on ``[s_lo, 10]`` is located by bisection on
     ``h'``; if it is >= 0 the largest root is bracketed between it and 10 and found by safeguarded
-    Newton. Otherwise, below the peak: the first increasing stretch of ``p`` that reaches 0 beyond
+    Newton (:func:`pmetric._inverse.bracketed_root`). Otherwise, below the peak: the first increasing stretch of ``p`` that reaches 0 beyond
     ``t_lo`` (from the per-model maxima) brackets the smallest ``t`` (largest k), found likewise.
     Returns ``(k, found)``.
     """
-    tiny = jnp.finfo(c.dtype).tiny
     vs, A, _, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
     has_h = s_p < 10.0
     lo = jnp.where(has_h, _s_lo(a0, a1, A, s_p), 1.0)
@@ -249,32 +250,16 @@ def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
     hm, _, _ = _h(s_m, A, ch, a0, a1)
     found_h = has_h & (hm >= 0)
 
-    def newton_h(_, st):  # safeguarded Newton for the root in [s_m, 10]: h(lo) >= 0 > h(hi)
-        lo, hi, x = st
-        g, dg, _ = _h(x, A, ch, a0, a1)
-        pos = g >= 0
-        lo, hi = jnp.where(pos, x, lo), jnp.where(pos, hi, x)
-        xn = x - g / jnp.minimum(dg, -tiny)
-        ok = (xn > lo) & (xn < hi)
-        return lo, hi, jnp.where(ok, xn, 0.5 * (lo + hi))
-
-    lo_h, hi_h, _ = lax.fori_loop(0, n_iter, newton_h, (s_m, hi, hi))
+    # the root in [s_m, 10], h(s_m) >= 0 > h(10): its perceptible end
+    lo_h = bracketed_root(lambda x: _h(x, A, ch, a0, a1)[0], s_m, hi, n_iter)
     t_lo = jnp.maximum(-jnp.log(jnp.where(below & (s_p > 0), s_p, 10.0)), T_MIN)
     a, bb, has_p = _p_bracket(t_lo, cp, struct, below, a0, a1)
     has_p = has_p & ~found_h
     a = jnp.where(has_p, a, 0.0)
     bb = jnp.where(has_p, bb, 0.0)
 
-    def newton_p(_, st):  # p increasing on [a, b], p(a) < 0 <= p(b): smallest t with p >= 0
-        lo, hi, x = st
-        g, dg = _p(x, cp, a0, a1)
-        pos = g >= 0
-        lo, hi = jnp.where(pos, lo, x), jnp.where(pos, x, hi)
-        xn = x - g / jnp.maximum(dg, tiny)
-        ok = (xn > lo) & (xn < hi)
-        return lo, hi, jnp.where(ok, xn, 0.5 * (lo + hi))
-
-    _, hi_p, _ = lax.fori_loop(0, n_iter, newton_p, (a, bb, bb))
+    # p increases on [a, b], p(a) < 0 <= p(b): the smallest t with p >= 0, as a root in x = -t
+    hi_p = -bracketed_root(lambda x: _p(-x, cp, a0, a1)[0], -bb, -a, n_iter)
     k = vs * jnp.where(found_h, lo_h, jnp.exp(-hi_p))
     return k, found_h | has_p
 
