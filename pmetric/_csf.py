@@ -25,7 +25,7 @@ from jax import lax
 
 from ._base import CSFModel, _is_tracer, _log_guard, check_inputs
 from ._inverse import implicit_root, implicit_solution, lambertw_m1, largest_crossing
-from ._kelly import kelly_fast, kelly_slow, kelly_structure, rare_compacted
+from ._kelly import kelly_clamped_root, kelly_fast, kelly_slow, kelly_structure, rare_update
 
 __all__ = ["ManosSakrison", "KellyAbstract", "KellySpatioTemporal", "RovamoVirsu", "Eccentric"]
 
@@ -397,21 +397,25 @@ class KellySpatioTemporal(CSFModel):
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
         """See :meth:`CSFModel.imperceptible_distance`; theta deg, v deg/s. Direct solve (``_kelly.py``):
 
-        1. ``k0 = 2 theta f*(c, 0.1)`` (Lambert W). For ``k >= 10 v`` the retinal velocity v/k is clamped
-           at 0.1 and perceptibility falls with k, so where ``k0 >= 10 v`` (e.g. v = 0) the answer is k0;
-           elsewhere every perceptible k is below ``10 v``.
-        2. Below ``10 v``, in ``s = k / v`` the margin on the falling limb is
-           ``h(s) = ln c + ln K(1/s) + ln s - 2 A s + 2 ln(A / b) - A`` (``A = b v / 2 theta``), strictly
-           concave in s for these constants (checked per model by :func:`kelly_structure`): six Newton
-           steps from ``s = 10`` descend monotonically onto its largest root (every iterate is an upper
-           bound, so k errs on the conservative side, converged to 1e-5 relative) or certify that
-           there is none. Below the peak frequency the margin is a fixed function of ``ln(v / k)`` whose
-           local maxima are found once per model; a root there is bracketed from them.
-        3. The few elements step 2 cannot settle (a root close to a tangency, or a root below the peak
-           frequency) are gathered and solved with certified brackets (:func:`kelly_slow`).
-        Constants for which concavity cannot be certified (``a1 / a0`` above about 1.37; Kelly's and Reddy's are 1.197) fall back to
-        a scan: monotone Newton where the margin is concave in ln k, a 129-point grid plus safeguarded
-        Newton elsewhere (it can miss a perceptible window narrower than one grid step).
+        1. For ``k >= 10 v`` the retinal velocity v/k is clamped at 0.1 deg/s and perceptibility falls
+           with k; where the change is perceptible at ``k = 10 v`` (or ``v = 0``) the answer is the root
+           of ``2 ln y - 1.05 y + C`` (``y = b k / theta``; the Lambert W closed form
+           ``k0 = 2 theta f*(c, 0.1)``), found by Newton from a fitted start within 1e-5 of it.
+        2. Elsewhere every perceptible k is below ``10 v``. In ``s = k / v`` the margin on the falling
+           limb is ``h(s) = ln c + ln K(1/s) + ln s - 2 A s + 2 ln(A / b) - A`` (``A = b v / 2 theta``),
+           strictly concave in s for these constants (checked per model by :func:`kelly_structure`):
+           Newton from an upper bound descends monotonically onto its largest root (every iterate is an
+           upper bound, so k errs on the conservative side, converged to 1e-5 relative) or certifies
+           that there is none. Below the peak frequency the margin is a fixed function of ``ln(v / k)``
+           whose local maxima are found once per model; a root there is bracketed from them.
+           Steps 1 and 2 are one elementwise pass of four Newton steps (:func:`kelly_fast`).
+        3. The few elements that pass cannot settle (a root close to a tangency, or a root below the
+           peak frequency; about 1 in 1000 random inputs) are gathered and solved with certified
+           brackets (:func:`kelly_slow`, :func:`kelly_clamped_root`).
+        Constants for which concavity cannot be certified (``a1 / a0`` above about 1.37; Kelly's and
+        Reddy's are 1.197) fall back to a scan: monotone Newton where the margin is concave in ln k,
+        a 129-point grid plus safeguarded Newton elsewhere (it can miss a perceptible window narrower
+        than one grid step).
         Gradients: implicit-function theorem on the fused margin.
         """
         c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
@@ -421,14 +425,8 @@ class KellySpatioTemporal(CSFModel):
         c, theta, v = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, v))
         pos = theta > 0
         th = jnp.where(pos, theta, 1.0)
-        z0 = jnp.zeros((), dtype)  # v = 0 (clamped to 0.1): scalar terms, folded once
-        k0 = 2.0 * th * self._threshold_frequency(c, z0, z0)
-        easy = k0 >= 10.0 * v
-        if not _is_tracer(easy) and bool(np.all(np.asarray(easy))):
-            return jnp.where(pos, k0, 0.0)
         sg = lax.stop_gradient
-        ms, c_, th_, v_ = sg((self, c, th, v))
-        need = (v_ > 0) & ~easy
+        ms, c_, t_, v_ = sg((self, c, theta, v))
         if _is_tracer(self.a0) or _is_tracer(self.a1):
             struct = kelly_structure(ms.a0, ms.a1, dtype)
         else:  # concrete constants (the usual case): decide the solver at trace time
@@ -436,24 +434,39 @@ class KellySpatioTemporal(CSFModel):
                 struct = kelly_structure(self.a0, self.a1, dtype)
 
         def direct(_):
-            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, th_, v_, struct)  # k (0: none; NaN: undecided)
-            rare = jnp.isnan(w) & need
-            found = w > 0
-            slow = lambda c1, t1, v1: kelly_slow(ms.a0, ms.a1, ms.b, c1, t1, v1, struct)  # noqa: E731
-            w_r, found_r = rare_compacted(slow, rare, (c_, th_, v_))
-            return jnp.where(rare, w_r, w), jnp.where(rare, found_r, found) & need
+            # one elementwise pass from the raw inputs (nothing else reads its intermediates, so XLA
+            # keeps it one fused loop): k, 0 = none, NaN = undecided
+            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, jnp.where(t_ > 0, t_, 1.0), v_, struct)
+            w = jnp.where(t_ > 0, w, 0.0)
+
+            def slow(c1, t1, v1):  # certified brackets and the Lambert W closed form
+                k0 = kelly_clamped_root(ms.a0, ms.a1, ms.b, c1, t1)
+                k, found = kelly_slow(ms.a0, ms.a1, ms.b, c1, t1, v1, struct)
+                return jnp.where(k0 >= 10.0 * v1, k0, jnp.where(found & (v1 > 0), k, 0.0))
+
+            def rare(c1, t1, v1):  # the gathered few: more Newton steps first (one pass, no loop)
+                t1 = jnp.where(t1 > 0, t1, 1.0)
+                w1 = kelly_fast(ms.a0, ms.a1, ms.b, c1, t1, v1, struct, n_newton=12)
+                nb = max(16, c1.size // 16)
+                return rare_update(slow, w1, jnp.isnan(w1), (c1, t1, v1), block=1, max_blocks=nb, cap=nb)
+
+            return rare_update(rare, w, jnp.isnan(w), (c_, t_, v_))
 
         def scan(_):
+            z0 = jnp.zeros((), dtype)  # v = 0 (clamped to 0.1): scalar terms, folded once
+            th_ = jnp.where(t_ > 0, t_, 1.0)
+            k0 = 2.0 * th_ * ms._threshold_frequency(c_, z0, z0)
+            easy = k0 >= 10.0 * v_
             w, found = ms._distance_scan(c_, th_, v_, easy)
-            return jnp.exp(w), found
+            return jnp.where(t_ > 0, jnp.where(easy, k0, jnp.where(found, jnp.exp(w), 0.0)), 0.0)
 
         if _is_tracer(struct[0]):
-            k_star, found = lax.cond(struct[0], direct, scan, None)
+            k_star = lax.cond(struct[0], direct, scan, None)
         else:  # XLA on CPU runs the branches of a cond on one thread: avoid it when possible
-            k_star, found = direct(None) if bool(struct[0]) else scan(None)
-        ok = found & pos
+            k_star = direct(None) if bool(struct[0]) else scan(None)
+        ok = k_star > 0
         k = implicit_solution(_kelly_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, v)
-        return jnp.where(pos & easy, k0, jnp.where(ok, k, 0.0))
+        return jnp.where(ok, k, 0.0)
 
     def _distance_scan(self, c_, th_, v_, easy):
         """The general solver (any a0, a1): monotone Newton where the margin is concave in ln k, a
@@ -499,10 +512,14 @@ class KellySpatioTemporal(CSFModel):
             w, found, _sat = largest_crossing(g1, lo1, hi1, n_grid=129, n_iter=40)
             return w, found
 
+        def search_nan(*a):  # not found: NaN
+            w, found = search_b(*a)
+            return jnp.where(found, w, jnp.nan)
+
         # up to a quarter of the batch gathered element by element (the whole batch when more)
-        wB, foundB = rare_compacted(search_b, needB, (c_, th_, v_, w_lo, w_hiB), block=1,
-                                    max_blocks=max(1, c_.size // 4))
-        foundB = needB & foundB
+        wB = rare_update(search_nan, jnp.full_like(c_, jnp.nan), needB, (c_, th_, v_, w_lo, w_hiB),
+                         block=1, max_blocks=max(1, c_.size // 4), cap=max(1, c_.size // 4))
+        foundB = needB & ~jnp.isnan(wB)
         w_star = jnp.where(foundA, wA, jnp.where(foundB, wB, 0.0))
         return w_star, (foundA | foundB)
 

@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from ._inverse import bracketed_root
+from ._inverse import bracketed_root, lambertw_m1
 
-__all__ = ["kelly_structure", "kelly_fast", "kelly_slow", "rare_compacted"]
+__all__ = ["kelly_structure", "kelly_fast", "kelly_slow", "kelly_clamped_root", "rare_update"]
 
 _LN10 = math.log(10.0)
 _LN3 = math.log(3.0)
@@ -172,14 +172,54 @@ def _s_lo(a0, a1, A, s_p):
     return jnp.minimum(jnp.maximum(s_p, (1.0 - m1) / (2.0 * A)), 10.0)
 
 
-def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
-    """Elementwise direct solve (under stop_gradient; v > 0, not perceptible at k = 10 v).
+# start of the clamped-velocity root: a(D) = 2 + 2 sqrt(D) + D q(sqrt(D)) solves 2 ln a - a + C = 0
+# (a >= 2, D = C + 2 ln 2 - 2); q: least-squares fit (numpy.polyfit, weights ~ x^2 / a, 400 Chebyshev
+# nodes in sqrt(D) on [0, sqrt(12)]) of the exact root -2 W_{-1}(-e^(-C/2) / 2); relative error <= 1e-5
+# for 0 <= D <= 12 (tested), so one Newton step converges. Leading terms 2/3, 1/18 as in the
+# branch-point series of W_{-1} (Corless et al. 1996, eq 4.22).
+_R1_Q = (0.00043165, -0.00676053, 0.05455865, 0.66710294)
+_R1_D_MAX = 12.0
 
-    ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most ``s = 10``).
-    Returns one array: the largest perceptible ``k <= 10 v`` where found, 0 where nothing below
-    ``10 v`` is perceptible, NaN where this pass cannot settle it (Newton not yet converged to 1e-5 relative
-    without a no-root certificate, or a possible root below the peak frequency): the caller solves
-    those with :func:`kelly_slow`.
+
+def _r1(a0, a1, b, lnc):
+    """The clamped-velocity regime ``k >= 10 v`` (u = 0.1 deg/s) in ``y = b k / theta``:
+    ``G1(y) = 2 ln y - g1 y + C1`` with ``g1 = (0.1 + 2) / 2``; concave, maximal at ``y* = 2 / g1``
+    (the peak frequency) where it equals ``D = C1 + 2 ln(2 / g1) - 2``. Returns ``(g1, C1, D)``."""
+    x1 = (T_MIN - _LN3) / _LN10
+    k1 = a0 + a1 * abs(x1) ** 3
+    g1 = 0.5 * (math.exp(T_MIN) + 2.0)
+    c1 = lnc + jnp.log(0.1 * k1) - 2.0 * jnp.log(2.0 * b)
+    return g1, c1, c1 + (2.0 * math.log(2.0 / g1) - 2.0)
+
+
+def kelly_clamped_root(a0, a1, b, c, th):
+    """``k0``: the largest perceptible k in the clamped regime (Lambert W, exact; 0 if none). Where
+    ``k0 >= 10 v`` it is the answer; :func:`kelly_fast` finds it by Newton, this is its reference."""
+    lnc = jnp.log(jnp.maximum(c, 1e-30))
+    g1, c1, d = _r1(a0, a1, b, lnc)
+    ok = d >= 0
+    x = jnp.where(ok, -0.5 * jnp.exp(-0.5 * jnp.where(ok, c1 - 2.0 * math.log(g1), 0.0)), -0.25)
+    return jnp.where(ok, -2.0 * lambertw_m1(x) / g1 * th / b, 0.0)
+
+
+def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 4):
+    """Elementwise direct solve for every element (under stop_gradient; ``th > 0``, ``v >= 0``).
+
+    Two independent parts in one elementwise pass, selected at the end:
+
+    * where the change is perceptible at ``k = 10 v`` (or ``v = 0``) the answer is the root of the
+      clamped-velocity margin ``G1(y) = 2 ln y - g1 y + C1`` (``y = b k / theta``; Lambert W in closed
+      form): a fitted series in ``sqrt(D)`` starts within 1e-5 of it, and in float64 one Newton step
+      (from either side of the concave ``G1`` it lands on an upper bound) makes it exact. In float32
+      the step is skipped: near the branch point (``D -> 0``) its rounding would cost more than the
+      series' 1e-5 (the root is ill-conditioned there in any method);
+    * elsewhere: ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most
+      ``s = 10``), with the certificates of the module docstring.
+
+    Returns one array: the largest perceptible ``k`` where found, 0 where nothing is perceptible, NaN
+    where this pass cannot settle it (Newton not yet converged to 1e-5 relative without a no-root
+    certificate, a possible root below the peak frequency, or ``D > 12``, i.e. ``c >> 1``): the caller
+    solves those with :func:`kelly_slow` and :func:`kelly_clamped_root`.
     """
     tiny = jnp.finfo(c.dtype).tiny
     vs, A, lnA, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
@@ -221,9 +261,26 @@ def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 5):
     for j in range(NMAX):
         has_p = has_p | ((jnp.exp(-tmax[j]) < s_top) & (pmax[j] + cp >= 0))
     rare = undecided | (below & none_h & has_p)
+    k_h = jnp.where(rare, jnp.nan, jnp.where(found_h & (v > 0), vs * sv, 0.0))
+
+    # the clamped regime. (Its own chain of expressions: sharing more intermediates with the above
+    # makes XLA split the pass into several materialized arrays, which costs more than recomputing.)
+    g1, c1, d = _r1(a0, a1, b, jnp.log(jnp.maximum(c, 1e-30)))
+    y_star = 2.0 / g1
+    y10 = jnp.maximum(10.0 * b * v / th, y_star)
+    r1 = (2.0 * jnp.log(y10) - g1 * y10 + c1 >= 0) & (d >= 0)  # perceptible at k = 10 v
+    xd = jnp.sqrt(jnp.clip(d, 0.0, None))
+    q = _R1_Q[0]
+    for coef in _R1_Q[1:]:
+        q = q * xd + coef
+    y = (2.0 + 2.0 * xd + xd * xd * q) / g1
+    if jnp.finfo(c.dtype).bits > 32:
+        y = jnp.maximum(y - (2.0 * jnp.log(y) - g1 * y + c1) / jnp.minimum(2.0 / y - g1, -tiny), y_star)
+    k_1 = jnp.where(d <= _R1_D_MAX, y * th / b, jnp.nan)
     # one output array (XLA on CPU would otherwise materialize the shared intermediates once per
     # output): k where found, 0 where there is no root, NaN where the slow solver must decide
-    return jnp.where(rare, jnp.nan, jnp.where(found_h, vs * sv, 0.0))
+    return jnp.where(r1, k_1, k_h)
+
 
 
 def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
@@ -264,42 +321,60 @@ def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
     return k, found_h | has_p
 
 
-def rare_compacted(fn, mask, args, block: int = 16, max_blocks: int | None = None):
-    """``fn(*args)`` (elementwise, returning ``(values, flags)``) evaluated only where ``mask``.
+def rare_update(fn, base, mask, args, block: int = 16, max_blocks: int | None = None,
+                cap: int | None = None):
+    """``base`` with ``fn(*args)`` written where ``mask`` (``fn`` elementwise, returning one array).
 
-    Two-level compaction (flat XLA compaction of a large array is slow on CPU): the blocks of
-    ``block`` elements holding a masked element are gathered (at most ``max_blocks``, static), ``fn``
-    runs on them; with more such blocks it runs on everything, with none not at all (``lax.switch``).
-    Elsewhere the result is ``(0, False)``. Default ``max_blocks``: room for 1 element in 2048, ten
-    times the rate at which :func:`kelly_fast` leaves elements unsettled on random inputs."""
+    For a rare mask: flat compaction of a large array is slow with XLA on CPU, so it is two-level.
+    The blocks of ``block`` elements holding a masked element are gathered (at most ``max_blocks``,
+    static), then the masked elements among them (at most ``cap``); ``fn`` runs on those and the
+    results are scattered into ``base``. With more masked elements than ``cap`` ``fn`` runs on the
+    gathered blocks, with more blocks than ``max_blocks`` on everything, with none not at all
+    (``lax.switch`` / ``lax.cond``). Defaults: ``max_blocks`` ``n / 256`` (at least 64), ``cap``
+    ``n / 256`` (at least 64), about ten times the rate at which :func:`kelly_fast` leaves elements
+    unsettled on random inputs."""
     shape = mask.shape
     m = mask.reshape(-1)
     n = m.size
+    b0 = jnp.broadcast_to(base, shape).reshape(-1)
     nblk = -(-n // block)
     pad = nblk * block - n
-    flat = [jnp.pad(jnp.broadcast_to(a, shape).reshape(-1), (0, pad)) for a in args]
-    mb = jnp.pad(m, (0, pad)).reshape(nblk, block)
+    flat = [jnp.broadcast_to(a, shape).reshape(-1) for a in args]
+    if pad:
+        flat = [jnp.pad(a, (0, pad)) for a in flat]
+        m = jnp.pad(m, (0, pad))
+    mb = m.reshape(nblk, block)
     hit = mb.any(axis=1)
-    nb = min(max(64, -(-n // 2048)) if max_blocks is None else max_blocks, nblk)
-    zeros = (jnp.zeros((n,), flat[0].dtype), jnp.zeros((n,), bool))
+    nb = min(max(64, -(-n // 256)) if max_blocks is None else max_blocks, nblk)
+    cap = min(nb * block, max(64, -(-n // 256)) if cap is None else cap)
+    drop = n + pad  # out-of-range index: the write is dropped
 
-    def full(_):
-        w, ok = fn(*(a[:n] for a in flat))
-        return jnp.where(m, w, 0.0), ok & m
+    def none(b):
+        return b
 
-    def compact(_):
+    def full(b):
+        return jnp.where(m[:n], fn(*(a[:n] for a in flat)), b)
+
+    def blocks(b):
         (bi,) = jnp.nonzero(hit, size=nb, fill_value=nblk)
         bi_c = jnp.minimum(bi, nblk - 1)
-        sub = [a.reshape(nblk, block)[bi_c] for a in flat]
-        w, ok = fn(*sub)
-        ok = ok & mb[bi_c] & (bi < nblk)[:, None]
-        idx = (bi[:, None] * block + jnp.arange(block)[None, :]).reshape(-1)
-        idx = jnp.where(ok.reshape(-1), idx, n + pad)  # only the solved elements are written
-        w_full = jnp.zeros((n + pad,), flat[0].dtype).at[idx].set(w.reshape(-1), mode="drop")
-        ok_full = jnp.zeros((n + pad,), bool).at[idx].set(True, mode="drop")
-        return w_full[:n], ok_full[:n]
+        sub = [a.reshape(nblk, block)[bi_c].reshape(-1) for a in flat]
+        msub = (mb[bi_c] & (bi < nblk)[:, None]).reshape(-1)
+        idx = (bi_c[:, None] * block + jnp.arange(block)[None, :]).reshape(-1)
 
-    count = hit.sum()
-    branch = jnp.where(count == 0, 0, jnp.where(count <= nb, 1, 2))
-    w, ok = lax.switch(branch, [lambda _: zeros, compact, full], None)
-    return w.reshape(shape), ok.reshape(shape)
+        def gathered(b):
+            return b.at[jnp.where(msub, idx, drop)].set(fn(*sub), mode="drop")
+
+        def elements(b):
+            (ei,) = jnp.nonzero(msub, size=cap, fill_value=msub.size)
+            ei_c = jnp.minimum(ei, msub.size - 1)
+            w = fn(*(a[ei_c] for a in sub))
+            return b.at[jnp.where(ei < msub.size, idx[ei_c], drop)].set(w, mode="drop")
+
+        if cap >= msub.size:
+            return gathered(b)
+        return lax.cond(msub.sum() <= cap, elements, gathered, b)
+
+    nhit = hit.sum()
+    branch = jnp.where(nhit == 0, 0, jnp.where(nhit <= nb, 1, 2))
+    return lax.switch(branch, [none, blocks, full], b0).reshape(shape)
