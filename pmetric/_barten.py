@@ -201,21 +201,6 @@ class Barten(CSFModel):
     # With concrete constants the peak, the falling limb's inverse and the perceptibility test are
     # evaluated from per-model scalars computed once at trace time (``_limb``); with traced constants
     # (fitting, grad w.r.t. the model) the generic solvers of CSFModel are used.
-    def _like(self, *xs):
-        """:meth:`CSFModel._like` with two differences: the target dtype honours weak types (a Python
-        scalar argument such as ``theta=0.1`` does not force float64 under x64, so float32 inputs with a
-        float64-built model compute in float32 on every path), and concrete fields are cast eagerly
-        (under jit a staged cast would hide the constants from :meth:`_limb_of`)."""
-        dtype = jnp.result_type(*(x for x in xs if x is not None), float)
-
-        def cast(x):
-            if eqx.is_inexact_array(x) and x.dtype != dtype:
-                return x.astype(dtype)
-            return x
-
-        with jax.ensure_compile_time_eval():
-            return jax.tree_util.tree_map(cast, self)
-
     def _limb_of(self, dtype, inverse: bool = True) -> _Limb | None:
         """The fast solvers' scalars for this model in ``dtype`` (None: traced constants, a dtype other
         than float32 / float64, or constants the fast path does not cover -- use the generic solvers).

@@ -124,7 +124,10 @@ class CSFModel(eqx.Module):
                 return x.astype(dtype)
             return x
 
-        return jax.tree_util.tree_map(cast, self)
+        # concrete fields are cast eagerly: under jit a staged cast would hide the constants from the
+        # per-model fast paths that precompute from them at trace time (Barten, stelaCSF, Kelly)
+        with jax.ensure_compile_time_eval():
+            return jax.tree_util.tree_map(cast, self)
 
     # ----------------------------------------------------------------- the model
     @abc.abstractmethod

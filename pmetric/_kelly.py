@@ -241,8 +241,8 @@ def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 4):
     s_prev, step0 = s0, jnp.full_like(c, 10.0)
     for _ in range(n_newton - 1):
         s_prev, _, _, step0 = newton(s_prev)
-        # materialize each iterate: XLA would otherwise re-compute the unrolled chain per consumer
-        # (a fori_loop would do, but XLA on CPU runs loop bodies on one thread)
+        # (an unrolled chain: XLA keeps the whole pass in one fused loop; a fori_loop would write and
+        # read every iterate and its per-element constants once per step)
         s_prev, step0 = lax.optimization_barrier((s_prev, step0))
     sv, g, dg, step = newton(s_prev)  # g, dg at s_prev: the certificates use the tangent there
     # no root on the falling limb: h < 0 on (s_prev, 10] (passed by monotone Newton) and, h being

@@ -41,8 +41,10 @@ import numpy as np
 
 from jax import lax
 
-from ._base import CSFModel, check_inputs
-from ._inverse import implicit_root
+from ._base import _F_HI, _F_LO, _N_GRID, CSFModel, _log_guard, check_inputs
+from ._inverse import implicit_root, implicit_solution, largest_crossing
+from ._kelly import rare_update
+from . import _stela_fast as _fast
 
 __all__ = ["StelaCSF", "SENSITIVITY_FLOOR"]
 
@@ -250,8 +252,16 @@ class StelaCSF(CSFModel):
         return jnp.exp(implicit_root(dlog, u_star, mask=interior))
 
     def _peak_frequency_sg(self, e, v):
-        """The peak frequency without gradient (what the distance margin needs): no implicit-root pass."""
-        return jnp.exp(self._peak_log_frequency(e, v)[0])
+        """The peak frequency without gradient (what the distance margin needs): no implicit-root pass.
+        Concrete constants: the table + Newton path of :meth:`_fast_peak`; else the generic search."""
+        shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
+        dtype = jnp.result_type(e, v, float)
+        tab = self._fast_table(dtype)
+        if tab is None:
+            return jnp.exp(self._peak_log_frequency(e, v)[0])
+        e1, v1 = (lax.stop_gradient(jnp.broadcast_to(x, shape).astype(dtype).reshape(-1)) for x in (e, v))
+        up, _ = self._fast_peak(tab, e1, v1, dtype)
+        return jnp.exp(up).reshape(shape)
 
     def _peak_log_frequency(self, e, v):
         """Frequency of peak sensitivity at (e, v) and the default luminance / area / vis_field.
@@ -274,7 +284,7 @@ class StelaCSF(CSFModel):
         e_, v_, ms = lax.stop_gradient((e, v, self))
         logs = lambda u: ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
         n = self._PEAK_GRID
-        u_lo, u_hi = np.log(1e-3), np.log(1e3)
+        u_lo, u_hi = math.log(1e-3), math.log(1e3)  # Python floats: weakly typed (no float64 under x64)
         du = (u_hi - u_lo) / (n - 1)
 
         def scan(j, state):
@@ -323,6 +333,150 @@ class StelaCSF(CSFModel):
         interior = (u_star != ub) & (u_star != split) & (u_star > u_lo + du) & (u_star < u_hi - du)
         return u_star, interior
 
+    # ---------------------------------------------------------------- fast paths (concrete constants)
+    def _fast_table(self, dtype):
+        """The per-model peak table of :mod:`pmetric._stela_fast` (built once per constants, float64), or
+        None: traced constants (fitting, gradients w.r.t. the model), a dtype other than float32 /
+        float64, or constants the fast path does not cover."""
+        dtype = jnp.dtype(dtype)
+        if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
+            return None
+        vals = [getattr(self, name) for name in _FIELDS]
+        if not all(_is_concrete(x) for x in vals):
+            return None
+        # the values the generic path computes with (the fields cast to dtype), as float64
+        vals = [np.asarray(x).astype(dtype).astype(np.float64) for x in vals]
+        consts = _fast.consts_of(vals, self.luminance, self.area, self.vis_field)
+        return None if consts is None else _fast.build_table(consts)
+
+    def _fast_peak(self, tab, e, v, dtype):
+        """``(ln f_peak, ln S_peak)`` at (e, v) (deg, deg/s; 1-D arrays) from the table, with the few
+        unsettled elements (about 0.2 % of random inputs: near the kinks, outside the table) solved by
+        the generic :meth:`_peak_log_frequency` after compaction. No gradient."""
+        up, mp, settled = lax.optimization_barrier(_fast.fast_peak(tab, e, v, dtype))
+        ms = lax.stop_gradient(self)
+
+        def slow(e1, v1):
+            u1, _ = ms._peak_log_frequency(e1, v1)
+            return u1, jnp.ones(u1.shape, bool)
+
+        up = rare_update(lambda e1, v1: slow(e1, v1)[0], up, ~settled, (e, v))
+        m_r = ms._log_s(jnp.exp(up), e, v, *self._defaults(dtype))
+        mp = jnp.where(settled, jnp.maximum(mp, _LN_FLOOR), m_r)
+        return up, mp
+
+    def _defaults(self, dtype):
+        return tuple(jnp.asarray(x, dtype) for x in (self.luminance, self.area, self.vis_field))
+
+    def is_perceptible(self, c, f, e=0.0, v=0.0):
+        """True where contrast ``c`` at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
+        velocity ``v`` (deg/s) is visible at the default luminance / area / visual field:
+        ``c >= 1 / S(max(f, f_peak(e, v)), e, v)`` (see :meth:`CSFModel.is_perceptible`).
+
+        Concrete constants (a model closed over by ``jit``): the peak comes from the per-model table of
+        :mod:`pmetric._stela_fast` (one analytic Newton step per candidate, exact to rounding) and ln S
+        at f from the model's formula; otherwise the generic kink-aware search. Both agree except within
+        rounding of the threshold (Mantiuk, Ashraf & Chapiro 2022 for the model)."""
+        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        shape = jnp.broadcast_shapes(c.shape, f.shape, e.shape, v.shape)
+        dtype = jnp.result_type(c, f, e, v, float)
+        self = self._like(c, f, e, v)
+        tab = self._fast_table(dtype)
+        if tab is None:
+            return super().is_perceptible(c, f, e, v)
+        c, f, e, v = (jnp.broadcast_to(x, shape).astype(dtype).reshape(-1) for x in (c, f, e, v))
+        up, mp = lax.optimization_barrier(self._fast_peak(tab, e, v, dtype))  # no recomputation per consumer
+        below = jnp.log(jnp.where(f > 0, f, 1.0)) < up
+        below = below | (f <= 0)
+        ls = self._log_s(f, e, v, *self._defaults(dtype))
+        out = _log_guard(c) + jnp.where(below, mp, ls) >= 0
+        return out.reshape(shape)
+
+    def _fast_ray(self, dtype):
+        """(table, ray constants) of :mod:`pmetric._stela_fast` for concrete constants, else None."""
+        tab = self._fast_table(dtype)
+        if tab is None:
+            return None
+        fp_max = float(np.exp(np.nanmax(tab.cand[..., [0, 3]])))
+        return tab, _fast.build_ray(tab.k, fp_max), _fast.build_ray(tab.k, fp_max, _fast.RAY_DU_FINE)
+
+    def _generic_distance_value(self, c, th, e, v):
+        """The base class's scan + safeguarded Newton (value only; ``th > 0``): k, or 0. The margin's peak
+        frequency is the kink-aware search of :meth:`_peak_log_frequency` (no nested compaction: this
+        runs on few elements, and compiles three times faster)."""
+        lnc = _log_guard(c)
+        L, A, vf = self._defaults(c.dtype)
+
+        def g(w):
+            k = jnp.exp(w)
+            ek, vk = e / k, v / k
+            fe = jnp.maximum(k / (2.0 * th), jnp.exp(self._peak_log_frequency(ek, vk)[0]))
+            return lnc + self._log_s(fe, ek, vk, L, A, vf)
+
+        w_lo = jnp.log(2.0 * th * _F_LO)
+        w_hi = jnp.log(2.0 * th * _F_HI)
+        w, found, _ = largest_crossing(g, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
+        return jnp.where(found, jnp.exp(w), 0.0)
+
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """Viewing-distance multiple beyond which a change of Michelson contrast ``c`` spanning ``theta``
+        deg at eccentricity ``e`` (deg) and retinal velocity ``v`` (deg/s) is imperceptible (definition:
+        :meth:`CSFModel.imperceptible_distance`; model: Mantiuk, Ashraf & Chapiro 2022, ACM TOG
+        41(4):145). Seen k times farther away the change has f = k / (2 theta) cycles/deg, e / k and
+        v / k; 0 where ``theta = 0`` or nothing is perceptible.
+
+        Concrete constants (the usual case): a direct solve along the ray (:func:`pmetric._stela_fast.
+        ray_distance`). The temporal frequency v / (2 theta) and the frequency-dependent eccentricity
+        drop ``drop_f e / (2 theta)`` are constant along it, so the falling-limb margin
+        m(u) = ln c + ln S(f, e / k, v / k) (u = ln f) is a closed form in which, on a static grid of u
+        (step 0.3 over the range where any c <= 1 can be visible), only one exponential depends on the
+        element. A top-down scan finds the highest grid cell with a root, certifying each cell above
+        it free of roots by per-cell upper bounds of m and of m' (m is a sum of two log-concave channel
+        terms); safeguarded Newton from the secant start then polishes the root (3 steps in float32, 5
+        in float64). Below the peak frequency the threshold is the peak's: the answer is the largest
+        falling-limb root wherever the peak sensitivity does not fall along the ray between that root
+        and the highest peak frequency (checked per model, see :func:`pmetric._stela_fast.build_ray`).
+        Elements this pass cannot certify (a root close to a tangency, a ray through the small region
+        where the transient channel's gain with velocity beats the eccentricity drop, c > 1, a root
+        not converged) -- about 0.1 % of random inputs -- are gathered (:func:`pmetric._kelly.
+        rare_update`) and solved by the generic scan of :meth:`CSFModel.imperceptible_distance`.
+        Traced constants (fitting): the generic method. Gradients w.r.t. c, theta, e, v and the
+        constants: implicit-function theorem on the exact margin (the peak frequency under stop_gradient,
+        exact by the envelope theorem where it binds)."""
+        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
+        dtype = jnp.result_type(c, theta, e, v, float)
+        self = self._like(c, theta, e, v)
+        fast = self._fast_ray(dtype)
+        if fast is None:
+            return super().imperceptible_distance(c, theta, e, v)
+        tab, ray, fine = fast
+        c, theta, e, v = (jnp.broadcast_to(x, shape).astype(dtype).reshape(-1) for x in (c, theta, e, v))
+        sg = lax.stop_gradient
+        c_, t_, e_, v_ = sg((c, theta, e, v))
+        pos_ = t_ > 0
+        th_ = jnp.where(pos_, t_, 1.0)
+        k0 = _fast.ray_distance(tab.k, ray, c_, th_, e_, v_, dtype)
+        k0 = jnp.where(pos_, k0, 0.0)
+        ms = sg(self)
+
+        def tier2(c1, t1, e1, v1):  # the same solve on a 6 times finer grid
+            return _fast.ray_distance(tab.k, fine, c1, jnp.where(t1 > 0, t1, 1.0), e1, v1, dtype)
+
+        def slow(c1, t1, e1, v1):
+            return ms._generic_distance_value(c1, jnp.where(t1 > 0, t1, 1.0), e1, v1)
+
+        k1 = rare_update(tier2, k0, jnp.isnan(k0), (c_, t_, e_, v_))
+        # the generic scan costs ~100 us per element: gather few (up to n / 8192 elements, or their
+        # blocks of 16; beyond that every element)
+        cap = max(64, c_.size // 8192)
+        k_star = rare_update(slow, k1, jnp.isnan(k1), (c_, t_, e_, v_), max_blocks=cap, cap=cap)
+        ok = k_star > 0
+        pos = theta > 0
+        th = jnp.where(pos, theta, 1.0)
+        k = implicit_solution(_distance_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, e, v)
+        return jnp.where(ok, k, 0.0).reshape(shape)
+
     def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
         """Sensitivity 1/c_T of a stimulus: f (cycles/deg), e (deg), v (deg/s), luminance (cd/m2), area (deg2).
 
@@ -340,6 +494,14 @@ class StelaCSF(CSFModel):
     def sensitivity(self, f, e=0.0, v=0.0):
         """Sensitivity at the default luminance (100 cd/m2) and area (1 deg2); f cycles/deg, e deg, v deg/s."""
         return self.stimulus_sensitivity(f, e, v)
+
+
+_FIELDS = tuple(StelaCSF.param_bounds)
+
+
+def _distance_margin_k(k, model, c, th, e, v):
+    """ln c - ln c_T at distance multiple k (the exact margin, for the implicit-function derivative)."""
+    return model._distance_margin(k, c, th, e, v)
 
 
 @eqx.filter_jit
