@@ -1004,7 +1004,9 @@ def _exact_distance_impl(plan, freqs, eccs, ms, T2, c, theta, e):
                 first = a1 >= 0
                 num = jnp.where(first, 2.0 * a0, sd - a1)
                 den = jnp.where(first, -a1 - sd, 2.0 * a2)
-            xr = _fmin(_fmax(num / den, xa), xb)  # NaN (0/0) stays NaN and fails the test below
+            # jnp.maximum / minimum, not _fmax / _fmin: the division must have ONE consumer, else XLA
+            # materializes it as a pass of its own (an expensive op feeding two fusions)
+            xr = jnp.minimum(jnp.maximum(num / den, xa), xb)  # NaN (0/0) stays NaN and fails the test below
             if isinstance(xhi, float) and xhi != _INF:  # bounded piece: e' = ea 10^-(xr - xa), polynomial
                 er = ea * _pow10_neg(xr - xa, xhi - (xlo if isinstance(xlo, float) else 0.0), dtype)
             else:
