@@ -259,17 +259,28 @@ class CSFModel(eqx.Module):
         return jnp.where(visible, jnp.where(saturated, jnp.asarray(_F_HI, dtype), jnp.exp(u)), 0.0)
 
     # ----------------------------------------------------------------- distance key
-    def _distance_margin(self, k, c, theta, e, v):
+    def _distance_margin(self, k, c, theta, e, v, peak=None):
         """log c - log c_T at distance multiple ``k`` (perceptible iff >= 0).
 
-        The peak frequency enters under ``stop_gradient``: where it binds (f below the peak) the
-        margin is log S at its maximum over f, so by the envelope theorem its derivative with respect
-        to the peak location is 0 and every derivative of the margin stays exact, without
-        differentiating the peak search."""
+        The peak frequency (``peak(e, v)``, default :meth:`_peak_frequency_sg`) enters under
+        ``stop_gradient``: where it binds (f below the peak) the margin is log S at its maximum over f,
+        so by the envelope theorem its derivative with respect to the peak location is 0 and every
+        derivative of the margin stays exact, without differentiating the peak search."""
         f = k / (2.0 * theta)
         ek, vk = e / k, v / k
-        fe = jnp.maximum(f, self._peak_frequency_sg(ek, vk))
+        fe = jnp.maximum(f, (self._peak_frequency_sg if peak is None else peak)(ek, vk))
         return _log_guard(c) + self.log_sensitivity(fe, ek, vk)
+
+    def _generic_scan(self, c, theta, e, v, peak=None):
+        """The scan of :meth:`imperceptible_distance` (no gradient; ``theta > 0``): ``(ln k*, found,
+        saturated)`` from :func:`largest_crossing` of :meth:`_distance_margin` over ``ln k`` in
+        ``[ln(2 theta _F_LO), ln(2 theta _F_HI)]``, ``_N_GRID`` points."""
+        shape = jnp.broadcast_shapes(*(jnp.shape(x) for x in (c, theta, e, v)))
+        dtype = jnp.result_type(c, theta, e, v, float)
+        g = lambda w: self._distance_margin(jnp.exp(w), c, theta, e, v, peak)  # noqa: E731
+        w_lo = jnp.broadcast_to(jnp.log(2.0 * theta * _F_LO), shape).astype(dtype)
+        w_hi = jnp.broadcast_to(jnp.log(2.0 * theta * _F_HI), shape).astype(dtype)
+        return largest_crossing(g, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
 
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
         """Viewing-distance multiple beyond which a change is imperceptible (seed 004 section 5.3).
@@ -309,10 +320,7 @@ class CSFModel(eqx.Module):
             return self._distance_margin(jnp.exp(w), c, th, e, v)
 
         c_, e_, v_, ms = lax.stop_gradient((c, e, v, self))
-        g_sg = lambda w: ms._distance_margin(jnp.exp(w), c_, th_sg, e_, v_)  # noqa: E731
-        w_lo = jnp.broadcast_to(jnp.log(2.0 * th_sg * _F_LO), shape).astype(dtype)
-        w_hi = jnp.broadcast_to(jnp.log(2.0 * th_sg * _F_HI), shape).astype(dtype)
-        w_star, found, saturated = largest_crossing(g_sg, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
+        w_star, found, saturated = ms._generic_scan(c_, th_sg, e_, v_)
         ok = found & ~saturated & pos
         w = implicit_root(g, w_star, mask=ok)
         k = jnp.where(found & pos, jnp.exp(w), 0.0)

@@ -41,8 +41,8 @@ import numpy as np
 
 from jax import lax
 
-from ._base import _F_HI, _F_LO, _N_GRID, CSFModel, _log_guard, check_inputs
-from ._inverse import implicit_root, implicit_solution, largest_crossing
+from ._base import CSFModel, _log_guard, check_inputs
+from ._inverse import implicit_root, implicit_solution
 from ._kelly import rare_update
 from . import _stela_fast as _fast
 
@@ -355,12 +355,7 @@ class StelaCSF(CSFModel):
         the generic :meth:`_peak_log_frequency` after compaction. No gradient."""
         up, mp, settled = lax.optimization_barrier(_fast.fast_peak(tab, e, v, dtype))
         ms = lax.stop_gradient(self)
-
-        def slow(e1, v1):
-            u1, _ = ms._peak_log_frequency(e1, v1)
-            return u1, jnp.ones(u1.shape, bool)
-
-        up = rare_update(lambda e1, v1: slow(e1, v1)[0], up, ~settled, (e, v))
+        up = rare_update(lambda e1, v1: ms._peak_log_frequency(e1, v1)[0], up, ~settled, (e, v))
         m_r = ms._log_s(jnp.exp(up), e, v, *self._defaults(dtype))
         mp = jnp.where(settled, jnp.maximum(mp, _LN_FLOOR), m_r)
         return up, mp
@@ -404,18 +399,7 @@ class StelaCSF(CSFModel):
         """The base class's scan + safeguarded Newton (value only; ``th > 0``): k, or 0. The margin's peak
         frequency is the kink-aware search of :meth:`_peak_log_frequency` (no nested compaction: this
         runs on few elements, and compiles three times faster)."""
-        lnc = _log_guard(c)
-        L, A, vf = self._defaults(c.dtype)
-
-        def g(w):
-            k = jnp.exp(w)
-            ek, vk = e / k, v / k
-            fe = jnp.maximum(k / (2.0 * th), jnp.exp(self._peak_log_frequency(ek, vk)[0]))
-            return lnc + self._log_s(fe, ek, vk, L, A, vf)
-
-        w_lo = jnp.log(2.0 * th * _F_LO)
-        w_hi = jnp.log(2.0 * th * _F_HI)
-        w, found, _ = largest_crossing(g, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
+        w, found, _ = self._generic_scan(c, th, e, v, peak=lambda ek, vk: jnp.exp(self._peak_log_frequency(ek, vk)[0]))
         return jnp.where(found, jnp.exp(w), 0.0)
 
     def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
