@@ -17,8 +17,7 @@ import warnings
 COMMANDS = ["demo", "fit", "calibrate", "simplify"]
 
 
-class PlodError(Exception):
-    """An error caused by the user's input; printed without a traceback."""
+from pmetric import PlodError  # noqa: F401  (the library's one error type; re-exported for the commands)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -10,6 +10,7 @@ retinal velocity ``v`` in deg/s, Michelson contrast ``c`` in [0, 1], luminance i
 """
 
 # Each private module adds its public names below (one import line per module).
+from ._errors import PlodError
 from ._atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ._base import CSFModel
 from ._csf import Eccentric, KellyAbstract, KellySpatioTemporal, ManosSakrison, RovamoVirsu
