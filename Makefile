@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 EGL_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0
 
-.PHONY: install demo test bench fit-real egl clean
+.PHONY: install demo test test-slow test-all bench fit-real egl clean
 
 install: $(STAMP)
 
@@ -29,8 +29,19 @@ egl:
 demo: install
 	PYOPENGL_PLATFORM=egl $(BIN)/plod demo
 
+# Two tiers: `make test` (everything but the tests marked slow, two worker processes: the suite is
+# dominated by single-threaded XLA compilation) and `make test-slow` (the compile-heavy model checks).
+# .ci/run runs both; `make test-all` is the same in one command.
+PYTEST := PYOPENGL_PLATFORM=egl $(BIN)/python -m pytest -q -n 2
+
 test: install
-	PYOPENGL_PLATFORM=egl $(BIN)/python -m pytest -q
+	$(PYTEST) -m "not slow"
+
+test-slow: install
+	$(PYTEST) -m slow
+
+test-all: install
+	$(PYTEST)
 
 bench: install
 	$(BIN)/python -m experiments.bench_pmetric

@@ -1,6 +1,6 @@
 """``plod calibrate --simulate``: write the CSV of a simulated calibration session.
 
-Seed 004 section 6.1 calibrates a per-user CSF from gratings that fade in until the user responds. Without
+[LH01 §6.1] calibrates a per-user CSF from gratings that fade in until the user responds. Without
 a display and an observer this command simulates the session (``pmetric._simulate``): a
 ``SimulatedObserver`` whose thresholds are a named pmetric model's, with log-normal psychometric noise,
 run through the fade-in method of adjustment or a 2AFC staircase over a grid of frequencies (cycles/deg)
@@ -21,35 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-_ALIASES = {"stela": "StelaCSF", "stelacsf": "StelaCSF", "barten": "Barten"}
-
-
-def _model_from_name(name: str):
-    import pmetric
-    from experiments.cli import PlodError
-
-    base = getattr(pmetric, "CSFModel", None)
-    cls_name = _ALIASES.get(name.lower(), name)
-    candidates = {n.lower(): n for n in dir(pmetric)
-                  if isinstance(getattr(pmetric, n), type) and base is not None
-                  and issubclass(getattr(pmetric, n), base) and getattr(pmetric, n) is not base}
-    real = candidates.get(cls_name.lower())
-    if real is None:
-        raise PlodError(f"unknown model {name!r}; choose one of {sorted(candidates.values())} (or stela, barten)")
-    try:
-        return getattr(pmetric, real)()
-    except TypeError as exc:
-        raise PlodError(f"model {real} cannot be built with its default constants ({exc}); "
-                        "use --model-file with a saved model") from None
-
+from pmetric import PlodError, make_model
 
 def _parse_list(text: str, what: str) -> np.ndarray:
     try:
         vals = np.array([float(t) for t in text.split(",") if t.strip() != ""], dtype=float)
     except ValueError:
-        raise ValueError(f"--grid: {what} list {text!r} is not a comma-separated list of numbers") from None
+        raise PlodError(f"--grid: {what} list {text!r} is not a comma-separated list of numbers") from None
     if vals.size == 0 or not np.isfinite(vals).all():
-        raise ValueError(f"--grid: {what} list {text!r} must hold finite numbers")
+        raise PlodError(f"--grid: {what} list {text!r} must hold finite numbers")
     return vals
 
 
@@ -57,31 +37,33 @@ def parse_grid(text: str):
     """``"F1,F2,...xE1,...xV1,..."`` -> (freqs cycles/deg, eccs deg, vels deg/s); eccs/vels default to 0."""
     parts = text.lower().split("x")
     if not 1 <= len(parts) <= 3:
-        raise ValueError(f"--grid {text!r}: expected FREQS[xECCS[xVELS]] with comma-separated numbers")
+        raise PlodError(f"--grid {text!r}: expected FREQS[xECCS[xVELS]] with comma-separated numbers")
     names = ("frequency", "eccentricity", "velocity")
     lists = [_parse_list(p, n) for p, n in zip(parts, names)]
     while len(lists) < 3:
         lists.append(np.zeros(1))
     f, e, v = lists
     if (f <= 0).any():
-        raise ValueError("--grid: frequencies must be > 0 cycles/deg")
+        raise PlodError("--grid: frequencies must be > 0 cycles/deg")
     if (e < 0).any() or (v < 0).any():
-        raise ValueError("--grid: eccentricities and velocities must be >= 0")
+        raise PlodError("--grid: eccentricities and velocities must be >= 0")
     return f, e, v
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "calibrate", help="simulate a calibration session (seed 004 section 6.1) and write its CSV",
+        "calibrate", help="simulate a calibration session [LH01 §6.1] and write its CSV",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--simulate", action="store_true",
                    help="simulate the observer (required: a real session needs a calibrated display)")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--model", default="stela", help="pmetric model class name or alias (stela, barten)")
+    src.add_argument("--model", default="stela", metavar="NAME|FILE.json",
+                     help="the observer's model: a name (see plod models), eccentric(NAME) or a saved model "
+                          ".json (default stela: it depends on every stimulus dimension)")
     src.add_argument("--model-file", type=Path, help="a model saved with pmetric.save_model (JSON)")
     p.add_argument("--method", choices=("fade", "staircase"), default="fade",
-                   help="fade-in method of adjustment (seed 004) or 2AFC staircase")
+                   help="fade-in method of adjustment [LH01 §6.1] or 2AFC staircase")
     p.add_argument("--observer-seed", type=int, default=0, help="random seed of the simulated observer")
     p.add_argument("--noise", type=float, default=0.15,
                    help="psychometric spread: s.d. of the detection contrast in log10 units (0 = noise-free)")
@@ -100,9 +82,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from experiments.cli import PlodError
-    from pmetric._simulate import SimulatedObserver, fade_in_session, staircase_2afc, stimulus_grid
-    from pmetric import CalibrationData
+    from optim.fit import CalibrationData, SimulatedObserver, fade_in_session, staircase_2afc, stimulus_grid
 
     if not args.simulate:
         raise PlodError("only --simulate is supported: a real calibration needs a photometrically calibrated "
@@ -114,16 +94,10 @@ def run(args) -> int:
     for name, val in (("--luminance", args.luminance), ("--area", args.area)):
         if not math.isnan(val) and not (val > 0 and math.isfinite(val)):
             raise PlodError(f"{name} must be a positive number, got {val}")
-    inputs = []
-    if args.model_file is not None:
-        from pmetric import load_model
-
-        if not args.model_file.is_file():
-            raise FileNotFoundError(f"--model-file {args.model_file} does not exist")
-        model = load_model(args.model_file)
-        inputs.append(args.model_file)
-    else:
-        model = _model_from_name(args.model)
+    if args.model_file is not None and not args.model_file.is_file():
+        raise PlodError(f"--model-file {args.model_file} does not exist")
+    model = make_model(args.model_file if args.model_file is not None else args.model)
+    inputs = [Path(m) for m in (args.model_file, args.model) if m is not None and Path(m).is_file()]
     out = args.out
     for inp in inputs:
         if out.exists() and os.path.samefile(out, inp) or out.resolve() == inp.resolve():

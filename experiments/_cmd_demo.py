@@ -3,7 +3,7 @@
 1. Thresholds: the threshold contrast of every CSF model at a few spatial frequencies for the default
    display and viewer, the display's highest frequency xi, and the viewing-distance multiple beyond
    which a 0.5-degree, 10%-contrast change stops being visible.
-2. Simplification: a procedural mesh (no ``../shared`` needed) viewed as in seed 004's study (the
+2. Simplification: a procedural mesh (no ``../shared`` needed) viewed as in the study of [LH01 §6.2] (the
    object spans about 30 degrees of a 46-degree screen), simplified imperceptibly and to a triangle
    budget with perceptual and size keys.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import time
 
-import numpy as np
+from pmetric import PlodError
 
 FREQS = (1.0, 4.0, 16.0, 32.0)  # cycles/deg
 
@@ -59,20 +59,21 @@ def thresholds_table() -> dict:
 
 
 def simplification(subdivisions: int, budget_fraction: float) -> dict:
-    """Imperceptible and budget cuts of a procedural bumpy sphere for seed 004's default view.
+    """Imperceptible and budget cuts of a procedural bumpy sphere for the default view of [LH01 §6.2].
 
     Every cut is also judged by the perceptual keys: its ``distance`` is the viewing-distance multiple
-    beyond which it is imperceptible (seed 004 section 5.3), whatever keys chose it, so the size-keyed
+    beyond which it is imperceptible [LH01 §5.3], whatever keys chose it, so the size-keyed
     cut (VDSlib's default) and the perceptual one can be compared at the same triangle count.
     """
     import optim
+    import pmetric
 
     vertices, faces, colors = optim.bumpy_sphere(subdivisions, seed=0, colors=True)
     t0 = time.perf_counter()
     tree = optim.build_tree(vertices, faces, colors=colors, method="qem")
     build_ms = 1e3 * (time.perf_counter() - t0)
     view = optim.View.framing(vertices)
-    model = optim.default_model()
+    model = pmetric.default_model()
     perceptual = optim.score(tree, view, model, metric="perceptual")
     budget = int(budget_fraction * len(faces))
     cuts = {
@@ -91,9 +92,9 @@ def simplification(subdivisions: int, budget_fraction: float) -> dict:
 
 def run(args) -> int:
     if args.subdivisions < 1 or args.subdivisions > 9:
-        raise ValueError("--subdivisions must be between 1 and 9")
+        raise PlodError("--subdivisions must be between 1 and 9")
     if not 0.0 < args.budget_fraction <= 1.0:
-        raise ValueError("--budget-fraction must be in (0, 1]")
+        raise PlodError("--budget-fraction must be in (0, 1]")
     import pmetric as pm
 
     display = pm.Display.default()

@@ -16,6 +16,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from pmetric import PlodError, make_model
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -26,9 +28,9 @@ def register(subparsers) -> None:
                     "t_frequency, eccentricity, luminance, area, dataset).",
     )
     p.add_argument("data", help="CSV of thresholds")
-    p.add_argument("--model", required=True,
-                   help="model class name (case-insensitive: stelacsf, barten, kellyabstract, manossakrison, "
-                        "kellyspatiotemporal, ...) or a saved model .json to start from")
+    p.add_argument("--model", required=True, metavar="NAME|FILE.json",
+                   help="model to fit: a name (case-insensitive, see plod models: stela, barten, kellyabstract, "
+                        "eccentric(manossakrison), ...) or a saved model .json to start from")
     p.add_argument("--method", choices=["lm", "mcmc"], default="lm", help="least squares (lm) or emcee (mcmc)")
     p.add_argument("--solver", choices=["lm", "gauss-newton", "bfgs"], default="lm",
                    help="least-squares solver (--method lm)")
@@ -47,27 +49,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def resolve_model(name: str):
-    """A model instance from a class name (case-insensitive) or a saved ``.json`` model file."""
-    import pmetric
-
-    if name.lower().endswith(".json"):
-        return pmetric.load_model(name)
-    reg = {k.lower(): cls for k, cls in pmetric.model_registry().items()
-           if isinstance(cls, type) and issubclass(cls, pmetric.CSFModel)}
-    key = name.lower().replace("-", "").replace("_", "")
-    if key not in reg:
-        raise ValueError(f"unknown model {name!r}; choose one of {sorted(reg)} or a saved model .json")
-    cls = reg[key]
-    if cls.__name__ == "Eccentric":
-        return cls(pmetric.ManosSakrison())  # the foveal CSF of seed 000, scaled by Rovamo-Virsu M(e)
-    try:
-        return cls()
-    except TypeError as exc:
-        raise ValueError(f"model {cls.__name__} cannot be built with default constants ({exc}); "
-                        "start from a saved model .json") from None
-
-
 def run(args) -> int:
     import numpy as np
 
@@ -75,18 +56,18 @@ def run(args) -> int:
     import pmetric
 
     if args.conservative is not None and not 0 < args.conservative < 1:
-        raise ValueError(f"--conservative must be in (0, 1), got {args.conservative}")
+        raise PlodError(f"--conservative must be in (0, 1), got {args.conservative}")
     if args.conservative is not None and args.method != "mcmc":
-        raise ValueError("--conservative needs --method mcmc")
+        raise PlodError("--conservative needs --method mcmc")
     data_path = Path(args.data)
     if args.out is not None:
         out = Path(args.out)
         if data_path.exists() and out.exists() and os.path.samefile(out, data_path):
-            raise ValueError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
+            raise PlodError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
         if out.is_dir():
-            raise ValueError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
-    data = pmetric.CalibrationData.from_csv(data_path)
-    model = resolve_model(args.model)
+            raise PlodError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
+    data = optim.fit.CalibrationData.from_csv(data_path)
+    model = make_model(args.model)
     fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None
     rows = None if args.all_rows else "auto"
     report: dict = {"model": type(model).__name__, "data": str(data_path), "method": args.method}
@@ -103,12 +84,14 @@ def run(args) -> int:
         )
         text = res.summary()
     else:
-        from optim._mcmc import ChainTooShortWarning, conservative, fit_mcmc
+        from experiments._progress import call_with_progress
+        from optim.fit import ChainTooShortWarning, conservative, fit_mcmc
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ChainTooShortWarning)
-            post = fit_mcmc(model, data, nwalkers=args.nwalkers, nsteps=args.nsteps, seed=args.seed,
-                            multipliers=args.multipliers, fit=fit, rows=rows, progress=not args.json)
+            post = call_with_progress(fit_mcmc, model, data, nwalkers=args.nwalkers, nsteps=args.nsteps,
+                                      seed=args.seed, multipliers=args.multipliers, fit=fit, rows=rows,
+                                      progress=not args.json, description=f"emcee {args.nwalkers}x{args.nsteps}")
         fitted = post.model() if args.conservative is None else conservative(post, args.conservative)
         lo, hi = post.interval(0.95)
         report.update(

@@ -2,13 +2,14 @@
 
 Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (built once and cached
 by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``) -> view (default: the object subtends about
-30 deg of a 46 deg screen, seed 004's study) -> per-node keys (``optim.score``) -> cut
+30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node keys (``optim.score``) -> cut
 (``optim.budget_cut`` or ``optim.imperceptible_cut``) -> ``optim.extract`` -> write ``--out``
 atomically (never over the input).
 
 Units: ``--fov`` and ``--screen-deg`` deg, ``--distance-m`` m, ``--gaze`` pixels of the image (x right,
-y down, origin top-left), ``--gaze-error`` deg. Perceptual keys are viewing-distance multiples (seed
-004 section 5.3); size and geometric keys are pixels.
+y down, origin top-left), ``--gaze-error`` deg. Perceptual keys are viewing-distance multiples
+[LH01 §5.3]; size and geometric keys are pixels. ``--model`` takes any spelling ``pmetric.make_model``
+accepts (``plod models`` lists them).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_MODEL = "KellyAbstract"
+from pmetric import DEFAULT_MODEL, PlodError, make_model
+
 DEFAULT_OBJECT_DEG = 30.0
 
 
@@ -52,7 +54,8 @@ def register(sub) -> None:
     p.add_argument("--gaze-error", metavar="DEG", default="1.0",
                    help="gaze uncertainty, deg (1 for an eye tracker, 15 for head tracking; default 1)")
     p.add_argument("--model", default=DEFAULT_MODEL, metavar="NAME|FILE.json",
-                   help=f"pmetric model name or a fitted model JSON file (default {DEFAULT_MODEL})")
+                   help=f"model name (see plod models), eccentric(NAME) or a fitted model .json "
+                        f"(default {DEFAULT_MODEL})")
     p.add_argument("--method", choices=("qem", "octree"), default="qem", help="vertex tree builder (default qem)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
@@ -65,16 +68,6 @@ def register(sub) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- parsing
-def _error(msg: str):
-    """A user error: ``PlodError`` (and ``ValueError``, so it prints as one line under any entry point)."""
-    from experiments.cli import PlodError
-
-    class SimplifyError(PlodError, ValueError):
-        pass
-
-    return SimplifyError(msg)
-
-
 def _vector(flag: str, text: str | None, n: int):
     if text is None:
         return None
@@ -85,9 +78,9 @@ def _vector(flag: str, text: str | None, n: int):
     except ValueError:
         vals = []
     if len(vals) != n:
-        raise _error(f"{flag} needs {words} comma-separated numbers, got {text!r}")
+        raise PlodError(f"{flag} needs {words} comma-separated numbers, got {text!r}")
     if not all(math.isfinite(x) for x in vals):
-        raise _error(f"{flag} needs finite numbers, got {text!r}")
+        raise PlodError(f"{flag} needs finite numbers, got {text!r}")
     return np.asarray(vals, dtype=np.float64)
 
 
@@ -97,11 +90,11 @@ def _number(flag: str, text, *, lo: float = 0.0, hi: float | None = None, strict
     try:
         x = float(text)
     except (TypeError, ValueError):
-        raise _error(f"{flag} needs a number, got {text!r}") from None
+        raise PlodError(f"{flag} needs a number, got {text!r}") from None
     bad = not math.isfinite(x) or (x <= lo if strict else x < lo) or (hi is not None and x >= hi)
     if bad:
         rng = f"{'>' if strict else '>='} {lo:g}" + (f" and < {hi:g}" if hi is not None else "")
-        raise _error(f"{flag} must be a finite number {rng}, got {text!r}")
+        raise PlodError(f"{flag} must be a finite number {rng}, got {text!r}")
     return x
 
 
@@ -109,30 +102,10 @@ def _budget(text) -> int:
     try:
         n = int(str(text).replace("_", ""))
     except ValueError:
-        raise _error(f"--budget needs a whole number of triangles, got {text!r}") from None
-    if n < 0:
-        raise _error(f"--budget must be >= 0, got {text!r}")
+        raise PlodError(f"--budget needs a whole number of triangles, got {text!r}") from None
+    if n < 1:
+        raise PlodError(f"--budget must be >= 1 (0 triangles is an empty mesh), got {text!r}")
     return n
-
-
-def load_model_arg(text: str):
-    """A pmetric model from a registered class name (default constants) or a JSON file (``pmetric.load_model``)."""
-    import pmetric
-
-    p = Path(text)
-    if text.lower().endswith(".json") or p.is_file():
-        if not p.is_file():
-            raise _error(f"--model: file not found: {text!r}")
-        return pmetric.load_model(p)
-    registry = {k: v for k, v in pmetric.model_registry().items()
-                if isinstance(v, type) and issubclass(v, pmetric.CSFModel)}
-    cls = registry.get(text)
-    if cls is None:
-        raise _error(f"--model: unknown model {text!r}; choose one of {', '.join(sorted(registry))} or a .json file")
-    try:
-        return cls()
-    except TypeError as exc:
-        raise _error(f"--model: {text} cannot be built with default constants ({exc}); pass a fitted .json") from None
 
 
 def _display(screen_deg, distance_m):
@@ -189,7 +162,9 @@ def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: 
     t0 = time.perf_counter()
     vertices, faces, colors = optim.load_mesh(path)
     load_s = time.perf_counter() - t0
-    tree = optim.build_tree(vertices, faces, colors, method=method, progress=progress)
+    from experiments._progress import call_with_progress
+
+    tree = call_with_progress(optim.build_tree, vertices, faces, colors, method=method, progress=progress)
     if entry is None:
         return tree, "off", load_s
     try:
@@ -211,12 +186,12 @@ def build_view(vertices, args):
     dist = _number("--distance-m", args.distance_m)
     gaze_err = _number("--gaze-error", args.gaze_error, strict=False)
     if args.no_gaze and args.gaze:
-        raise _error("--gaze and --no-gaze cannot be combined")
+        raise PlodError("--gaze and --no-gaze cannot be combined")
     gaze = None if args.no_gaze else "center"
     if args.gaze:
         gaze = np.stack([_vector("--gaze", g, 2) for g in args.gaze])
     if target is not None and eye is None:
-        raise _error("--target needs --eye")
+        raise PlodError("--target needs --eye")
     kw = dict(display=_display(screen, dist), gaze=gaze, gaze_error_deg=gaze_err, fov_deg=fov)
     if up is not None:
         kw["up"] = up
@@ -228,82 +203,98 @@ def build_view(vertices, args):
 
 
 # ----------------------------------------------------------------------------------------------- run
+def _outputs(args, mesh_path: Path):
+    """Checked ``(--budget, --out, --render, --render-size)`` (None where not given)."""
+    budget = _budget(args.budget) if args.budget is not None else None
+    if args.imperceptible and args.metric != "perceptual":
+        raise PlodError("--imperceptible needs --metric perceptual (keys in viewing-distance multiples)")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        if out.suffix.lower() not in (".ply", ".obj", ".off", ".stl", ".glb"):
+            what = out.suffix or "a file without suffix"
+            raise PlodError(f"--out: cannot write {what!r}; use .ply, .obj, .off, .stl or .glb")
+        if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
+            raise PlodError(f"--out {str(out)!r} is the input mesh; choose another output path")
+    render_path = Path(args.render) if args.render else None
+    render_size = None
+    if render_path is not None:
+        if render_path.suffix.lower() != ".png":
+            raise PlodError(f"--render: the picture is written as PNG; use a .png path, got {str(render_path)!r}")
+        render_size = tuple(int(x) for x in _vector("--render-size", args.render_size, 2))
+        if min(render_size) <= 0 or max(render_size) > 8192:
+            raise PlodError(f"--render-size must be two integers in 1..8192, got {args.render_size!r}")
+    return budget, out, render_path, render_size
+
+
+def _timed(t: dict, name: str, fn, *a, **kw):
+    """``fn(*a, **kw)``, its seconds stored as ``t[name]``."""
+    t0 = time.perf_counter()
+    res = fn(*a, **kw)
+    t[name] = time.perf_counter() - t0
+    return res
+
+
+def _cut(tree, keys, args, budget):
+    import optim
+
+    if args.imperceptible:
+        from optim._cut import threshold_cut
+
+        return threshold_cut(tree, keys, 1.0, monotone="trust")
+    return optim.budget_cut(tree, keys, budget, monotone="trust")
+
+
+def _render(path, size, tree, mesh, view, args, distance, mesh_path) -> dict:
+    """Render original and simplified with their FLIP difference to ``path``; the ``render`` result."""
+    from experiments import render as R
+
+    comp = R.compare(tree, mesh, view, size=size)
+    R.save_comparison(path, comp, protect=(mesh_path,), titles=(
+        f"original: {tree.n_triangles:,} triangles",
+        f"{args.metric} keys: {mesh[1].shape[0]:,} triangles (invisible beyond {distance:.3g}x)"))
+    return {"path": str(path), "mean_flip": comp.mean_flip, "pixels_per_degree": comp.pixels_per_degree}
+
+
 def simplify(args) -> dict:
     """Run the command; returns the result dictionary printed by ``--json``."""
     import optim
 
     mesh_path = Path(args.mesh)
-    budget = _budget(args.budget) if args.budget is not None else None
-    if args.imperceptible and args.metric != "perceptual":
-        raise _error("--imperceptible needs --metric perceptual (keys in viewing-distance multiples)")
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        if out.suffix.lower() not in (".ply", ".obj", ".off", ".stl", ".glb"):
-            what = out.suffix or "a file without suffix"
-            raise _error(f"--out: cannot write {what!r}; use .ply, .obj, .off, .stl or .glb")
-        if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
-            raise _error(f"--out {str(out)!r} is the input mesh; choose another output path")
-    model = load_model_arg(args.model)
-    render_path = Path(args.render) if args.render else None
-    render_size = None
-    if render_path is not None:
-        if render_path.suffix.lower() != ".png":
-            raise _error(f"--render: the picture is written as PNG; use a .png path, got {str(render_path)!r}")
-        render_size = tuple(int(x) for x in _vector("--render-size", args.render_size, 2))
-        if min(render_size) <= 0 or max(render_size) > 8192:
-            raise _error(f"--render-size must be two integers in 1..8192, got {args.render_size!r}")
-
-    t = {}
+    budget, out, render_path, render_size = _outputs(args, mesh_path)
+    model = make_model(args.model)
     if not mesh_path.is_file():
-        raise _error(f"mesh file not found: {str(mesh_path)!r}")
+        raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
+    t = {}
     t0 = time.perf_counter()
     tree, cache, t["load"] = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
                                            progress=not args.json)
     t["build"] = time.perf_counter() - t0 - t["load"]
     view = build_view(tree.vertices, args)
-    t0 = time.perf_counter()
-    keys = optim.score(tree, view, model, args.metric)
-    t["score"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    if args.imperceptible:
-        from optim._cut import threshold_cut
-
-        cut = threshold_cut(tree, keys, 1.0, monotone="trust")
-    else:
-        cut = optim.budget_cut(tree, keys, budget, monotone="trust")
-    t["cut"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    v2, f2, c2 = optim.extract(tree, cut)
-    t["extract"] = time.perf_counter() - t0
+    keys = _timed(t, "score", optim.score, tree, view, model, args.metric)
+    cut = _timed(t, "cut", _cut, tree, keys, args, budget)
+    if budget is not None and cut.triangles == 0:
+        raise PlodError(f"--budget {budget} is below the smallest non-empty cut for this view "
+                        f"({optim.min_nonempty_budget(tree, keys, monotone='trust')} triangles)")
+    v2, f2, c2 = _timed(t, "extract", optim.extract, tree, cut)
     if out is not None:
-        t0 = time.perf_counter()
-        optim.save_mesh(out, v2, f2, c2, protect=(mesh_path,))
-        t["save"] = time.perf_counter() - t0
+        _timed(t, "save", optim.save_mesh, out, v2, f2, c2, protect=(mesh_path,))
     perceptual = args.metric == "perceptual"
     # Whatever keys chose the cut, report the perceptual distance beyond which it is imperceptible
-    # (seed 004 section 5.3): the largest perceptual key among folded nodes (keys are monotone).
+    # [LH01 §5.3]: the largest perceptual key among folded nodes (keys are monotone).
     pkeys = keys if perceptual else optim.score(tree, view, model, "perceptual")
     folded = ~cut.unfolded
     distance = float(pkeys[folded].max()) if folded.any() else 0.0
     rendered = None
     if render_path is not None:
-        from experiments import render as R
-
-        t0 = time.perf_counter()
-        comp = R.compare(tree, (v2, f2, c2), view, size=render_size)
-        R.save_comparison(render_path, comp, protect=(mesh_path,), titles=(
-            f"original: {tree.n_triangles:,} triangles",
-            f"{args.metric} keys: {f2.shape[0]:,} triangles (invisible beyond {distance:.3g}x)"))
-        t["render"] = time.perf_counter() - t0
-        rendered = {"path": str(render_path), "mean_flip": comp.mean_flip,
-                    "pixels_per_degree": comp.pixels_per_degree}
+        rendered = _timed(t, "render", _render, render_path, render_size, tree, (v2, f2, c2), view, args,
+                          distance, mesh_path)
     return {
         "mesh": str(mesh_path),
         "input_triangles": int(tree.n_triangles),
         "output_triangles": int(f2.shape[0]),
         "output_vertices": int(v2.shape[0]),
         "metric": args.metric,
-        "model": type(model).__name__ if model is not None else None,
+        "model": type(model).__name__,
         "budget": budget,
         "imperceptible_distance": distance,
         "boundary_key": float(cut.distance),

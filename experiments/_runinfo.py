@@ -16,7 +16,15 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Mapping
 
-from pmetric import atomic_write_text
+from pmetric import PlodError, atomic_write_text
+
+ROOT = Path(__file__).resolve().parent.parent  # the repository
+
+
+def repo_path(p: str | Path) -> Path:
+    """``p`` itself when absolute, else relative to the repository root (config paths)."""
+    q = Path(p)
+    return q if q.is_absolute() else ROOT / q
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxopt", "numpy", "scipy", "trimesh",
              "emcee", "matplotlib", "fast-simplification", "meshoptimizer", "rich")
@@ -27,10 +35,10 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
     for key, value in overrides.items():
         if key not in defaults:
             known = ", ".join(sorted(defaults)) or "(none)"
-            raise ValueError(f"unknown config key {where + key!r}; known keys: {known}")
+            raise PlodError(f"unknown config key {where + key!r}; known keys: {known}")
         if isinstance(defaults[key], Mapping):
             if not isinstance(value, Mapping):
-                raise ValueError(f"config key {where + key!r} must be a table, got {type(value).__name__}")
+                raise PlodError(f"config key {where + key!r} must be a table, got {type(value).__name__}")
             out[key] = _merge(defaults[key], value, f"{where}{key}.")
         else:
             d = defaults[key]
@@ -41,7 +49,7 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
                 or (isinstance(d, (list, tuple)) and isinstance(value, (list, tuple)))
             )
             if not ok:
-                raise ValueError(
+                raise PlodError(
                     f"config key {where + key!r} must be {type(d).__name__}, got {type(value).__name__} ({value!r})"
                 )
             out[key] = float(value) if isinstance(d, float) else value
@@ -51,7 +59,7 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
 def load_config(path: str | Path | None, defaults: Mapping[str, Any]) -> dict:
     """Return ``defaults`` overridden by the TOML file at ``path`` (None: defaults unchanged).
 
-    Raises ``ValueError`` naming the key for unknown keys or wrongly typed values, and for malformed
+    Raises ``PlodError`` naming the key for unknown keys or wrongly typed values, and for malformed
     TOML; ``FileNotFoundError`` when the file does not exist.
     """
     if path is None:
@@ -62,13 +70,13 @@ def load_config(path: str | Path | None, defaults: Mapping[str, Any]) -> dict:
     try:
         overrides = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"malformed TOML in {p}: {exc}") from None
+        raise PlodError(f"malformed TOML in {p}: {exc}") from None
     return _merge(defaults, overrides, "")
 
 
 def git_sha(cwd: str | Path | None = None) -> str:
     """The current commit (with ``-dirty`` when the tree has changes), or ``"unknown"``."""
-    cwd = cwd or Path(__file__).resolve().parent.parent
+    cwd = cwd or ROOT
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True,
                              timeout=10).stdout.strip()
@@ -106,17 +114,25 @@ def save_run_info(out_dir: str | Path, config: Mapping[str, Any], seed: int | No
     return path
 
 
+# User errors: printed as one line, never a traceback (PlodError is a ValueError).
+USER_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, PermissionError)
+
+
+def report_errors(fn, prog: str) -> int:
+    """``fn()``'s exit code; a user error is printed as ``PROG: error: MESSAGE`` (status 2), an
+    interrupt as ``PROG: interrupted`` (status 130)."""
+    try:
+        return int(fn() or 0)
+    except USER_ERRORS as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__  # one line, whatever the message holds
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+
 def run_main(main) -> int:
     """Run an experiment's ``main()`` as a script: user errors (bad config, missing file, bad value)
     are printed as one line naming the problem, with exit status 2, never as a traceback."""
-    import sys
-
-    try:
-        return int(main() or 0)
-    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        prog = Path(sys.argv[0]).stem if sys.argv and sys.argv[0] else "experiment"
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return report_errors(main, Path(sys.argv[0]).stem if sys.argv and sys.argv[0] else "experiment")

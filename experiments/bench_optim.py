@@ -6,8 +6,8 @@
 
 For each mesh (the shared 796k-triangle turbine blade when ``../shared`` exists, skipped cleanly
 otherwise, a procedural bumpy torus of 1,000,000 and a bumpy sphere of 1,310,720 triangles): build the vertex tree once, then
-for 8 views around the object (framed at 30 deg of a 46 deg screen, gaze at the centre, seed 004's
-study) time ``optim.score`` (perceptual keys, the default model), ``optim.budget_cut`` to 10 % of the
+for 8 views around the object (framed at 30 deg of a 46 deg screen, gaze at the centre, the study of
+[LH01 §6.2]) time ``optim.score`` (perceptual keys, the default model), ``optim.budget_cut`` to 10 % of the
 input triangles and ``optim.extract``. meshoptimizer's ``simplify`` then produces the same triangle
 count from the full mesh, and the ratio of the two is measured in the same run.
 
@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from experiments.peers import meshopt_simplify
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = ROOT.parent / "shared" / "data" / "meshes" / "turbineblade-subdiv-796k.ply"
@@ -49,17 +51,6 @@ def _views(vertices, n: int):
         d = (np.sin(az), 0.25, np.cos(az))
         out.append(optim.View.framing(vertices, 30.0, direction=d))
     return out
-
-
-def _meshopt_simplify(vertices, faces, target_triangles: int):
-    """meshoptimizer's simplify to ``target_triangles`` (error bound lifted so the count decides)."""
-    import meshoptimizer
-
-    idx = np.ascontiguousarray(faces, dtype=np.uint32).ravel()
-    pos = np.ascontiguousarray(vertices, dtype=np.float32)
-    dest = np.empty_like(idx)
-    n = meshoptimizer.simplify(dest, idx, pos, target_index_count=3 * int(target_triangles), target_error=1.0)
-    return n // 3
 
 
 def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metric, progress, con, repeat=3):
@@ -94,7 +85,7 @@ def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metri
     rec["out_triangles"] = int(statistics.median(r[6] for r in rows))
     rec["distance"] = float(statistics.median(r[7] for r in rows))
     # meshoptimizer to the same triangle count (best of 2 runs)
-    runs = [_timed(lambda: _meshopt_simplify(tree.vertices, tree.faces, rec["out_triangles"])) for _ in range(2)]
+    runs = [_timed(lambda: len(meshopt_simplify(tree.vertices, tree.faces, rec["out_triangles"]))) for _ in range(2)]
     best = min(runs, key=lambda r: r[1])
     rec["meshopt_triangles"], rec["meshopt_ms"], rec["meshopt_cpu_ms"] = best[0], best[1] * 1e3, best[2] * 1e3
     rec["ratio"] = rec["meshopt_ms"] / rec["update_ms"]

@@ -56,54 +56,52 @@ def _view_keys(tree, rng):
 
 
 def _cache_bytes(tree) -> int:
-    """Bytes of the per-view caches budget_cut / extract keep on the tree (arrays in its __dict__ that are
-    not dataclass fields)."""
+    """Bytes of the per-view caches budget_cut / extract keep on the tree (the arrays among the tree's
+    derived data, ``tree.derived``, that are not its fields)."""
     import dataclasses
 
     fields = {f.name for f in dataclasses.fields(tree)}
     total = 0
-    for k, val in tree.__dict__.items():
-        if k in fields:
-            continue
+    for val in tree._derived.values():
         for a in (val if isinstance(val, tuple) else (val,)):
             if isinstance(a, np.ndarray) and not any(a is getattr(tree, f) for f in fields):
                 total += a.nbytes
     return total
 
 
-def main(argv=None) -> int:
-    import fast_simplification
-    from rich.console import Console
-
-    import optim
-    from pmetric import atomic_write_text
-
+def _parse(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--mesh", default=None, help="mesh file (default: the 796k-triangle turbine blade)")
     ap.add_argument("--quick", action="store_true", help="small procedural mesh (bumpy sphere, 20k triangles)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench_tree.md"))
-    args = ap.parse_args(argv)
-    con = Console()
-    rng = np.random.default_rng(0)
+    return ap.parse_args(argv)
+
+
+def _input_mesh(args):
+    """(vertices, faces, name) of the benchmark mesh."""
+    import optim
 
     if args.quick:
         v, f = optim.bumpy_sphere(5, seed=0)
-        name = "bumpy_sphere(5)"
-    elif args.mesh or BIG.exists():
+        return v, f, "bumpy_sphere(5)"
+    if args.mesh or BIG.exists():
         path = Path(args.mesh) if args.mesh else BIG
         v, f, _ = optim.load_mesh(path)
-        name = path.name
-    else:
-        v, f = optim.bumpy_sphere(7, seed=0)
-        name = "bumpy_sphere(7)"
-    T = f.shape[0]
-    con.print(f"mesh {name}: {T:,} triangles, {v.shape[0]:,} vertices")
-    rows = []
+        return v, f, path.name
+    v, f = optim.bumpy_sphere(7, seed=0)
+    return v, f, "bumpy_sphere(7)"
 
-    # ---- build -------------------------------------------------------------------------------
+
+def _bench_builds(v, f, args, con):
+    """Build both trees and time fast-simplification on the same mesh: (rows, trees, full-sequence s)."""
+    import fast_simplification
+
+    import optim
+
+    T = f.shape[0]
     reps = 1 if T > 200_000 else args.repeat
-    trees = {}
+    rows, trees = [], {}
     for method in ("octree", "qem"):
         dt, tree = _best(lambda: optim.build_tree(v, f, method=method), reps)
         trees[method] = tree
@@ -116,8 +114,13 @@ def main(argv=None) -> int:
     dt0, _ = _best(lambda: fast_simplification.simplify(v, f32, target_count=0, return_collapses=True), reps)
     rows.append(("fast_simplification to 0 (collapse sequence)", dt0, T / dt0, float("nan"), 0, WALL[-1]))
     con.print(f"  fast_simplification (CPU): 10 % {dt:.2f} s, full sequence {dt0:.2f} s")
+    return rows, trees, dt0
 
-    # ---- budget cut vs heap on >= 1e6 nodes ------------------------------------------------------
+
+def _bench_cuts(trees, args, rng, con):
+    """budget_cut vs budget_cut_heap on a tree of >= 10^6 nodes: (tree, rows)."""
+    import optim
+
     big = trees["qem"]
     if big.n_nodes < 1_000_000 and not args.quick:
         vb, fb = optim.bumpy_sphere(8, seed=1)
@@ -138,8 +141,13 @@ def main(argv=None) -> int:
             cut_rows.append((kname, budget, tf, th, th / tf, same))
             con.print(f"  cut {kname} budget {budget:,}: fast {tf * 1e3:.1f} ms, heap {th * 1e3:.0f} ms, "
                       f"x{th / tf:.0f}, identical={same}")
+    return big, cut_rows
 
-    # ---- per-view cut + extract on the build mesh ---------------------------------------------------
+
+def _bench_views(trees, T, args, rng, con):
+    """Per-view budget_cut + extract on the build mesh: rows."""
+    import optim
+
     view_rows = []
     for method, tree in trees.items():
         keys = _view_keys(tree, rng)
@@ -151,13 +159,14 @@ def main(argv=None) -> int:
             view_rows.append((method, budget, tc, tt, te, mesh[1].shape[0]))
             con.print(f"  view {method} budget {budget:,}: cut {tc * 1e3:.1f} ms (trust {tt * 1e3:.1f}), "
                       f"extract {te * 1e3:.1f} ms")
+    return view_rows
 
-    cache_rows = [(m, tr.nbytes / T, _cache_bytes(tr) / T) for m, tr in trees.items()]
-    for m, a, b in cache_rows:
-        con.print(f"  memory {m}: {a:.0f} B/tri tree + {b:.0f} B/tri per-view caches")
 
-    # ---- hierarchy quality: surface deviation of budget cuts (greedy on geometric error) -------------
+def _bench_quality(trees, T, con):
+    """Surface deviation of budget cuts greedy on geometric error: rows."""
     import igl
+
+    import optim
 
     quality = []
     for method, tree in trees.items():
@@ -169,8 +178,10 @@ def main(argv=None) -> int:
             quality.append((method, fs.shape[0], np.sqrt(d2.mean()) / rad, np.sqrt(d2.max()) / rad))
             con.print(f"  quality {method} {fs.shape[0]:,} triangles: input vertices to simplified surface "
                       f"rms {quality[-1][2]:.3g}, max {quality[-1][3]:.3g} x bounding radius")
+    return quality
 
-    # ---- report ----------------------------------------------------------------------------------
+
+def _report(args, name, v, T, rows, dt0, big, cut_rows, view_rows, cache_rows, quality) -> str:
     octree_rate = rows[0][2]
     lines = [
         "# bench_tree: vertex-tree build, budget cut, extraction",
@@ -219,14 +230,35 @@ def main(argv=None) -> int:
               "Memory after the views above (bytes per input triangle): "
               + "; ".join(f"{m}: tree {a:.0f} + per-view caches {b:.0f} = {a + b:.0f}" for m, a, b in cache_rows)
               + " (target <= 200).", "",
-              "## Hierarchy quality (seed 001 section 6.3 asks for a better clustering than the octree)", "",
+              "## Hierarchy quality ([LHNW00 §6.3] asks for a better clustering than the octree)", "",
               "Budget cuts greedy on each fold's geometric error (largest distance from a supported vertex "
               "to the proxy, made monotone); distance from every input vertex to the simplified surface "
               "(libigl point-mesh distance), in units of the model's bounding radius (smaller is better).", "",
               "| tree | triangles | rms distance / radius | max distance / radius |", "| --- | ---: | ---: | ---: |"]
     lines += [f"| {m} | {n:,} | {r:.3g} | {x:.3g} |" for m, n, r, x in quality]
     lines += [""]
-    out = atomic_write_text(args.out, "\n".join(lines))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    from rich.console import Console
+
+    from pmetric import atomic_write_text
+
+    args = _parse(argv)
+    con = Console()
+    rng = np.random.default_rng(0)
+    v, f, name = _input_mesh(args)
+    T = f.shape[0]
+    con.print(f"mesh {name}: {T:,} triangles, {v.shape[0]:,} vertices")
+    rows, trees, dt0 = _bench_builds(v, f, args, con)
+    big, cut_rows = _bench_cuts(trees, args, rng, con)
+    view_rows = _bench_views(trees, T, args, rng, con)
+    cache_rows = [(m, tr.nbytes / T, _cache_bytes(tr) / T) for m, tr in trees.items()]
+    for m, a, b in cache_rows:
+        con.print(f"  memory {m}: {a:.0f} B/tri tree + {b:.0f} B/tri per-view caches")
+    quality = _bench_quality(trees, T, con)
+    out = atomic_write_text(args.out, _report(args, name, v, T, rows, dt0, big, cut_rows, view_rows, cache_rows, quality))
     con.print(f"wrote {out}")
     return 0
 

@@ -2,8 +2,10 @@
 
 Each subcommand lives in its own module ``experiments/_cmd_<name>.py`` that defines
 ``register(subparsers)``; the module adds its parser and sets ``func`` to a handler taking the parsed
-namespace and returning an exit code. Errors meant for users are raised as ``PlodError`` (or
-``ValueError``/``FileNotFoundError``) and printed as one line, never a traceback.
+namespace and returning an exit code. Errors meant for users are raised as ``pmetric.PlodError`` (a
+``ValueError``; plain ``ValueError``/``FileNotFoundError`` are treated alike) and printed as one line
+(``plod CMD: error: ...``, exit status 2), never a traceback. Every ``--model`` flag goes through
+``pmetric.make_model``; ``plod models`` lists what it accepts.
 """
 
 from __future__ import annotations
@@ -13,11 +15,10 @@ import importlib
 import sys
 import warnings
 
+from pmetric import PlodError  # noqa: F401  (the library's one error type, re-exported)
+
 # Subcommand modules, in the order they appear in ``plod --help``.
-COMMANDS = ["demo", "fit", "calibrate", "simplify"]
-
-
-from pmetric import PlodError  # noqa: F401  (the library's one error type; re-exported for the commands)
+COMMANDS = ["demo", "fit", "calibrate", "simplify", "models"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,7 +36,7 @@ def _enable_compile_cache() -> None:
     """Keep XLA's compiled programs between runs (``$PLOD_CACHE/xla``, default ``~/.cache/plod/xla``).
 
     A command-line run compiles the same scoring and model programs every time; the persistent cache
-    turns seconds of start-up into milliseconds from the second run on. ``PLOD_NO_XLA_CACHE=1`` turns it off.
+    reuses them from the second run on. ``PLOD_NO_XLA_CACHE=1`` turns it off.
     """
     import os
     from pathlib import Path
@@ -61,14 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except (PlodError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        print(f"plod {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("plod: interrupted", file=sys.stderr)
-        return 130
+    from experiments._runinfo import report_errors
+
+    return report_errors(lambda: args.func(args), f"plod {args.command}")  # PlodError: one line, status 2
 
 
 def entry() -> None:  # pragma: no cover - the console script
@@ -79,8 +75,6 @@ def entry() -> None:  # pragma: no cover - the console script
 
 
 if __name__ == "__main__":  # pragma: no cover
-    # Run the imported module's entry, so that PlodError raised by subcommands (which import
-    # experiments.cli) is the class caught here, not a twin defined in __main__.
-    from experiments.cli import entry as _entry
+    from experiments.cli import entry as _entry  # the installed module's entry, as the console script
 
     _entry()

@@ -3,9 +3,8 @@
 What a simplification looks like is what matters, so ``plod simplify --render OUT.png`` draws the
 original and the simplified mesh for the same :class:`optim.View` with pyrender (offscreen, EGL when
 ``PYOPENGL_PLATFORM=egl``), Gouraud-shaded from pre-lit vertex intensities exactly as the perceptual
-model assumes (seed 001 section 4; seed 004 section 5.2: extremes of intensity occur at vertices), and
-measures the difference with NVIDIA's FLIP (Andersson et al. 2020, "FLIP: A Difference Evaluator for
-Alternating Images", HPG), whose pixels-per-degree comes from the view's display.
+model assumes ([LHNW00 §4], [LH01 §5.2]: extremes of intensity occur at vertices), and measures the
+difference with NVIDIA's FLIP [And20], whose pixels-per-degree comes from the view's display.
 
 Heavy imports (pyrender, flip_evaluator, matplotlib) happen inside the functions.
 """
@@ -16,6 +15,8 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+
+from pmetric import PlodError
 
 
 def _vertex_rgb(vertices, faces, colors, lighting) -> np.ndarray:
@@ -47,10 +48,10 @@ def render(vertices, faces, colors, view, *, lighting=None, size: tuple[int, int
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"render: vertices must be (V, 3) and faces (T, 3), got {v.shape} and {f.shape}")
+        raise PlodError(f"render: vertices must be (V, 3) and faces (T, 3), got {v.shape} and {f.shape}")
     w, h = size if size is not None else (view.width, view.height)
     if int(w) <= 0 or int(h) <= 0:
-        raise ValueError(f"render: size must be two positive integers, got {size!r}")
+        raise PlodError(f"render: size must be two positive integers, got {size!r}")
     rgb = _vertex_rgb(v, f, colors, lighting)
     bg_lum = view.background if background is None else float(background)
     import pmetric as pm
@@ -96,7 +97,7 @@ def flip(reference: np.ndarray, test: np.ndarray, pixels_per_degree: float) -> t
     ref = np.ascontiguousarray(reference, dtype=np.float32)
     tst = np.ascontiguousarray(test, dtype=np.float32)
     if ref.shape != tst.shape or ref.ndim != 3 or ref.shape[2] != 3:
-        raise ValueError(f"flip: images must both be (H, W, 3), got {ref.shape} and {tst.shape}")
+        raise PlodError(f"flip: images must both be (H, W, 3), got {ref.shape} and {tst.shape}")
     emap, mean, _ = flip_evaluator.evaluate(ref, tst, "LDR", inputsRGB=True, applyMagma=False,
                                             parameters={"ppd": float(pixels_per_degree)})
     emap = np.asarray(emap, dtype=np.float32)

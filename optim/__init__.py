@@ -1,14 +1,22 @@
 """optim: vertex hierarchies, per-view perceptual scoring, simplification cuts and model fitting.
 
-Stages (one file each): build hierarchy (``_tree``) -> view (``_view``) -> score folds (``_score``)
--> rank and select (``_cut``) -> extract; fitting of model constants in ``_fit``.
+Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) -> build the hierarchy
+(``_tree``, built by ``_build``; clustering in ``_octree`` / ``_qem``, normal cube in ``_normal_cube``, level-by-level
+propagation in ``_levels``) -> view (``_view``) -> score folds (``_score``: classify -> terms -> key ->
+propagate, over the per-tree ``_context`` and the per-node ``_terms``) -> select and extract (``_cut``);
+fitting of model constants in ``optim.fit``.
 """
 
 # Each private module adds its public names below (one import line per module).
-from ._fit import FitResult, expressible_rows, fit_least_squares, fitted_fields
-from ._mesh import MeshReport, bumpy_sphere, bumpy_torus, grid_mesh, icosphere, load_mesh, save_mesh, validate_mesh
-from ._tree import Lighting, VertexTree, build_tree, load_tree, mesh_hash, normal_cell_directions, normal_cells, vertex_luminance
-from ._cut import Cut, budget_cut, budget_cut_heap, extract, repair_monotone, threshold_cut
+from .fit import FitResult, expressible_rows, fit_least_squares, fitted_fields
+from ._mesh import MeshReport, ValidatedMesh, load_mesh, save_mesh, validate_mesh
+from ._shapes import bumpy_sphere, bumpy_torus, grid_mesh, icosphere
+from ._normal_cube import normal_cell_directions, normal_cells
+from ._tree import Lighting, VertexTree, load_tree, mesh_hash, vertex_luminance
+from ._build import build_tree
+from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut, min_nonempty_budget, repair_monotone,
+                   threshold_cut)
 from ._view import View
-from ._score import NodeTerms, ScoringContext, imperceptible_cut, node_terms, score, scoring_context, default_model
-from ._mcmc import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc
+from ._context import ScoringContext, scoring_context
+from ._score import NodeTerms, node_terms, score, default_model
+from .fit import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc

@@ -1,7 +1,7 @@
 """Cuts through the vertex tree: triangle-budget and threshold selection, and mesh extraction.
 
-Stages: ``check keys`` (monotone: parent >= child, seed 004 footnote 2) -> ``select`` (budget: the
-greedy order of VDSlib's triangle-budget mode, seed 004 section 5.3; threshold: every fold that is
+Stages: ``check keys`` (monotone: parent >= child [LH01 fn 2]) -> ``select`` (budget: the
+greedy order of VDSlib's triangle-budget mode [LH01 §5.3]; threshold: every fold that is
 perceptible) -> ``extract`` (representatives and surviving triangles).
 
 A cut is a boolean ``unfolded`` (N,) closed under ancestors. Only internal nodes are ever unfolded
@@ -23,7 +23,10 @@ import heapq
 
 import numpy as np
 
-__all__ = ["Cut", "budget_cut", "budget_cut_heap", "threshold_cut", "repair_monotone", "extract"]
+from pmetric import PlodError
+
+__all__ = ["Cut", "budget_cut", "budget_cut_heap", "min_nonempty_budget", "threshold_cut", "imperceptible_cut",
+           "repair_monotone", "extract"]
 
 _MONOTONE = ("check", "repair", "trust")
 
@@ -37,7 +40,7 @@ class Cut:
         triangles: triangles of the simplified mesh.
         distance: the largest key among folded internal nodes whose parent is unfolded (the boundary):
             for perceptual keys, the viewing-distance multiple beyond which the cut is imperceptible
-            (seed 004 section 5.3); 0.0 when every internal node is unfolded.
+            [LH01 §5.3]; 0.0 when every internal node is unfolded.
         stop_reason: ``"budget"`` (the next fold did not fit), ``"imperceptible"`` (every remaining
             fold has key <= threshold) or ``"all_unfolded"``.
     """
@@ -59,61 +62,55 @@ def _prepare_keys(tree, keys, monotone: str, who: str):
     float64. Only internal nodes' keys matter (leaves are never unfolded) and only they are checked.
     """
     if monotone not in _MONOTONE:
-        raise ValueError(f"{who}: monotone must be one of {_MONOTONE}, got {monotone!r}")
+        raise PlodError(f"{who}: monotone must be one of {_MONOTONE}, got {monotone!r}")
     k = np.asarray(keys)
     N = tree.n_nodes
     if k.shape != (N,):
-        raise ValueError(f"{who}: keys must have shape ({N},) (one per tree node), got {k.shape}")
+        raise PlodError(f"{who}: keys must have shape ({N},) (one per tree node), got {k.shape}")
     if not np.issubdtype(k.dtype, np.floating) and not np.issubdtype(k.dtype, np.integer):
-        raise ValueError(f"{who}: keys must be real numbers, got dtype {k.dtype}")
+        raise PlodError(f"{who}: keys must be real numbers, got dtype {k.dtype}")
     if k.dtype != np.float32:
         k = k.astype(np.float64, copy=False)
     internal = tree.internal
     ki = k.take(internal)
     if monotone == "trust" or internal.size < 2:
         if np.isnan(ki).any():
-            raise ValueError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
+            raise PlodError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
         return k, ki
     ok = ki.take(_internal_parent_pos(tree)) >= ki[1:]  # False for a violation or a NaN
     if ok.all():
         return k, ki
     if np.isnan(ki).any():
-        raise ValueError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
+        raise PlodError(f"{who}: keys contain NaN (node {int(internal[np.flatnonzero(np.isnan(ki))[0]])})")
     if monotone == "repair":
         k = repair_monotone(tree, k)
         return k, k.take(internal)
     bad = ~ok
     i = int(internal[1:][np.flatnonzero(bad)[0]])
-    raise ValueError(
+    raise PlodError(
         f"{who}: keys are not monotone (parent >= child) at {int(bad.sum())} internal nodes, e.g. node "
         f"{i} key {k[i]:g} > parent {int(tree.parent[i])} key {k[tree.parent[i]]:g}; pass "
-        f"monotone='repair' to propagate the maximum upward (seed 004 footnote 2)"
+        f"monotone='repair' to propagate the maximum upward [LH01 fn 2]"
     )
 
 
 def _internal_parent_pos(tree) -> np.ndarray:
     """(M - 1,) position in ``tree.internal`` of the parent of each non-root internal node (cached)."""
-    p = tree.__dict__.get("_internal_parent_pos")
-    if p is None:
+    def build():
         internal = tree.internal
         pos = np.full(tree.n_nodes, -1, dtype=np.int64)
         pos[internal] = np.arange(internal.size)
-        p = pos.take(tree.parent.take(internal[1:])).astype(np.int32)
-        tree.__dict__["_internal_parent_pos"] = p
-    return p
+        return pos.take(tree.parent.take(internal[1:])).astype(np.int32)
+
+    return tree.derived("cut.internal_parent_pos", build)
 
 
 def repair_monotone(tree, keys) -> np.ndarray:
-    """Monotone envelope: each node's key becomes the maximum over its subtree (seed 004 footnote 2).
+    """Monotone envelope: each node's key becomes the maximum over its subtree [LH01 fn 2].
 
     Returns a new float64 (N,) array; parent >= child holds afterwards.
     """
-    k = np.array(keys, dtype=np.float64)
-    par, start = tree.parent, tree.level_start
-    for d in range(len(start) - 2, 0, -1):
-        s, e = start[d], start[d + 1]
-        np.maximum.at(k, par[s:e], k[s:e])
-    return k
+    return tree.levels.reduce_up(np.array(keys, dtype=np.float64), np.maximum, include_self=True)
 
 
 def _desc_rank_bits(k: np.ndarray) -> np.ndarray:
@@ -133,15 +130,17 @@ def _desc_rank_bits(k: np.ndarray) -> np.ndarray:
 
 
 def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
-    """VDSlib's greedy triangle-budget cut (seed 004 section 5.3), computed by selection.
+    """VDSlib's greedy triangle-budget cut [LH01 §5.3], computed by selection.
 
     Args:
         tree: :class:`optim.VertexTree`.
         keys: (N,) fold priorities, larger = keep unfolded first (perceptual keys: imperceptible
             viewing-distance multiples); -inf is allowed (culled). Only internal nodes' keys are
             used; they must be monotone (parent >= child). float32 keys are used as they are.
-        budget: largest number of triangles (>= 0).
-        monotone: ``"check"`` (default: ValueError on violation), ``"repair"`` (use the monotone
+        budget: largest number of triangles, an integer >= 0 (bool, NaN and fractions are
+            rejected). A budget below :func:`min_nonempty_budget` gives the coarsest cut, the empty
+            one (0 triangles): check that first when the result must be a mesh.
+        monotone: ``"check"`` (default: PlodError on violation), ``"repair"`` (use the monotone
             envelope, :func:`repair_monotone`) or ``"trust"`` (no check; with non-monotone keys the
             result is the sorted-prefix cut, which may differ from the heap greedy).
 
@@ -192,33 +191,53 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
 
 
 def _is_internal(tree) -> np.ndarray:
-    m = tree.__dict__.get("_is_internal")
-    if m is None:
-        m = tree.child_count > 0
-        tree.__dict__["_is_internal"] = m
-    return m
+    return tree.derived("cut.is_internal", lambda: tree.child_count > 0)
 
 
 def _internal_subtris(tree) -> np.ndarray:
-    w = tree.__dict__.get("_internal_subtris")
-    if w is None:
-        w = tree.num_subtris[tree.internal].astype(np.float64)
-        tree.__dict__["_internal_subtris"] = w
-    return w
+    return tree.derived("cut.internal_subtris", lambda: tree.num_subtris[tree.internal].astype(np.float64))
 
 
 def _check_budget(budget) -> int:
-    try:
+    """A budget as a Python int: integers (Python or NumPy) and integral finite floats >= 0.
+
+    bool (an int subclass: ``True`` would be 1), NaN, infinities, fractions, strings and negative
+    numbers raise :class:`PlodError`."""
+    if isinstance(budget, (bool, np.bool_)):
+        raise PlodError(f"budget must be an integer number of triangles, got the bool {budget!r}")
+    if isinstance(budget, (int, np.integer)):
         b = int(budget)
-    except (TypeError, ValueError):
-        raise ValueError(f"budget must be an integer number of triangles, got {budget!r}") from None
-    if b != budget or b < 0:
-        raise ValueError(f"budget must be a non-negative integer number of triangles, got {budget!r}")
+    elif isinstance(budget, (float, np.floating)):
+        if not np.isfinite(budget) or float(budget) != np.floor(budget):
+            raise PlodError(f"budget must be an integer number of triangles, got {budget!r}")
+        b = int(budget)
+    else:
+        raise PlodError(f"budget must be an integer number of triangles, got {type(budget).__name__} {budget!r}")
+    if b < 0:
+        raise PlodError(f"budget must be a non-negative integer number of triangles, got {budget!r}")
     return b
 
 
+def min_nonempty_budget(tree, keys, *, monotone: str = "check") -> int:
+    """The smallest budget for which :func:`budget_cut` with these keys gives at least one triangle.
+
+    With nothing unfolded a cut has ``0`` triangles (unfolding the root alone may add none either),
+    and the greedy stops at the first fold that does not fit, so a budget below the subtris of the
+    first fold (in greedy order) that adds triangles gives the empty cut, whose extracted mesh is
+    empty (``save_mesh`` refuses to write it). Returns 0 for a tree without triangles.
+    """
+    k, ki = _prepare_keys(tree, keys, monotone, "min_nonempty_budget")
+    w = _internal_subtris(tree)
+    pos = np.flatnonzero(w > 0)
+    if pos.size == 0:
+        return 0
+    kp = ki.take(pos)
+    first = pos[np.flatnonzero(kp == kp.max())[0]]  # greatest key, lowest index (pos is ascending)
+    return int(w[first])
+
+
 def budget_cut_heap(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
-    """Reference greedy triangle-budget cut with ``heapq`` (VDSlib's budget mode, seed 004 section 5.3).
+    """Reference greedy triangle-budget cut with ``heapq`` (VDSlib's budget mode [LH01 §5.3]).
 
     Pops the boundary node with the greatest key (ties: lower index first), unfolds it while its
     subtris fit, stops at the first that does not. O(n log n) in Python: for tests and benchmarks.
@@ -246,12 +265,12 @@ def budget_cut_heap(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
 def threshold_cut(tree, keys, threshold: float = 1.0, *, monotone: str = "check") -> Cut:
     """Unfold every internal node whose key exceeds ``threshold`` (with its ancestors: top-down).
 
-    For perceptual keys and threshold 1 this is the imperceptible simplification of seed 004
-    section 5.1: every remaining fold is invisible from the current viewpoint.
+    For perceptual keys and threshold 1 this is the imperceptible simplification of
+    [LH01 §5.1]: every remaining fold is invisible from the current viewpoint.
     """
     thr = float(threshold)
     if np.isnan(thr):
-        raise ValueError("threshold_cut: threshold is NaN")
+        raise PlodError("threshold_cut: threshold is NaN")
     k, ki = _prepare_keys(tree, keys, monotone, "threshold_cut")
     internal = tree.internal
     unfolded = np.zeros(tree.n_nodes, dtype=bool)
@@ -260,10 +279,7 @@ def threshold_cut(tree, keys, threshold: float = 1.0, *, monotone: str = "check"
     take = ki > thr
     if monotone == "trust":  # close under ancestors explicitly
         unfolded[internal[take]] = True
-        par, start = tree.parent, tree.level_start
-        for d in range(1, len(start) - 1):
-            s, e = start[d], start[d + 1]
-            unfolded[s:e] &= unfolded[par[s:e]]
+        tree.levels.spread_down(unfolded, np.logical_and)
         take = unfolded[internal]
     else:
         unfolded[internal[take]] = True
@@ -290,10 +306,8 @@ def extract(tree, cut):
     Returns:
         ``(vertices (V', 3) float64, faces (T', 3) int32, colors (V', 3) float32 or None)``.
     """
-    unf = np.asarray(cut.unfolded if isinstance(cut, Cut) else cut)
-    N, V, T = tree.n_nodes, tree.n_vertices, tree.n_triangles
-    if unf.shape != (N,) or unf.dtype != np.bool_:
-        raise ValueError(f"extract: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
+    unf = _unfolded_mask(tree, cut)
+    V, T = tree.n_vertices, tree.n_triangles
     # Work proportional to the cut, plus a few O(V) fills: the kept triangles are the subtris of the
     # unfolded nodes (contiguous per node); the highest folded nodes (folded, parent unfolded) are the
     # folded children of unfolded nodes, and their depth-first leaf ranges tile 0..V-1, so a forward
@@ -343,6 +357,15 @@ def extract(tree, cut):
     return verts, faces, colors
 
 
+def _unfolded_mask(tree, cut) -> np.ndarray:
+    """The (N,) bool ``unfolded`` array of a :class:`Cut` or of the array itself (checked)."""
+    unf = np.asarray(cut.unfolded if isinstance(cut, Cut) else cut)
+    N = tree.n_nodes
+    if unf.shape != (N,) or unf.dtype != np.bool_:
+        raise PlodError(f"extract: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
+    return unf
+
+
 def _expand_ranges(start, count) -> np.ndarray:
     """Concatenation of ``arange(start[i], start[i] + count[i])`` over i (intp)."""
     count = count.astype(np.intp, copy=False)
@@ -356,21 +379,18 @@ def _expand_ranges(start, count) -> np.ndarray:
 def _extract_index_fast(tree):
     """Per-tree arrays of :func:`extract` (cached on the tree): the depth-first leaf position of each
     triangle corner (T, 3) int32, ``subtri_start`` (N+1,) and ``subtris`` (T,) as intp-free int32."""
-    c = tree.__dict__.get("_extract_index_fast")
-    if c is None:
+    def build():
         lp = tree.leaf_lo.take(tree.vertex_node).astype(np.int32)
-        c = (lp.take(tree.faces), np.asarray(tree.subtri_start), np.asarray(tree.subtris))
-        tree.__dict__["_extract_index_fast"] = c
-    return c
+        return lp.take(tree.faces), np.asarray(tree.subtri_start), np.asarray(tree.subtris)
+
+    return tree.derived("cut.extract_index_fast", build)
 
 
 def _extract_reference(tree, cut):
     """Reference form of :func:`extract` (every node, vertex and triangle, O(N + V + T) per call);
     the tests check that :func:`extract` returns the identical arrays."""
-    unf = np.asarray(cut.unfolded if isinstance(cut, Cut) else cut)
-    N, V = tree.n_nodes, tree.n_vertices
-    if unf.shape != (N,) or unf.dtype != np.bool_:
-        raise ValueError(f"extract: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
+    unf = _unfolded_mask(tree, cut)
+    V = tree.n_vertices
     # highest folded nodes (folded, parent unfolded): each leaf lies under exactly one; their
     # depth-first leaf ranges tile 0..V-1, so a forward fill maps every leaf position to its node
     parent, tri_node, vdfs = _extract_index(tree)
@@ -407,9 +427,14 @@ def _extract_reference(tree, cut):
 def _extract_index(tree):
     """``parent`` (N,), ``tri_node`` (T,) and the depth-first leaf position of each vertex (V,) intp,
     which :func:`extract` needs every view (cached on the tree: 8 bytes per vertex)."""
-    c = tree.__dict__.get("_extract_index")
-    if c is None:
-        c = (tree.parent, tree.tri_node,
-             tree.leaf_lo.take(tree.vertex_node).astype(np.intp))
-        tree.__dict__["_extract_index"] = c
-    return c
+    return tree.derived("cut.extract_index", lambda: (tree.parent, tree.tri_node,
+                                                       tree.leaf_lo.take(tree.vertex_node).astype(np.intp)))
+
+
+def imperceptible_cut(tree, view, model=None, *, exact: bool = False) -> Cut:
+    """Fold every node whose fold is imperceptible from ``view``, top down [LHNW00 §4; LH01 §5.1]:
+    :func:`threshold_cut` at key 1 of the perceptual keys of :func:`optim.score`, ``stop_reason``
+    ``"imperceptible"`` (or ``"all_unfolded"`` when no fold is imperceptible)."""
+    from ._score import score
+
+    return threshold_cut(tree, score(tree, view, model, "perceptual", exact=exact), 1.0, monotone="trust")

@@ -1,4 +1,4 @@
-"""Tight-octree vertex clustering (VDSlib's default clustering; Luebke & Erikson 1997, used by seed 001).
+"""Tight-octree vertex clustering (VDSlib's default clustering [LE97], used by [LHNW00]).
 
 Stages:
 
@@ -47,14 +47,19 @@ def morton_codes(points: np.ndarray) -> np.ndarray:
 def _common_levels(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Number of leading 3-bit octree digits two codes share (0..LEVELS), int64."""
     x = a ^ b
-    # bit length of x by binary search (exact on uint64)
+    n = _floor_log2(x) + (x != 0)  # bit length of x
+    return LEVELS - (n + 2) // 3
+
+
+def _floor_log2(x: np.ndarray) -> np.ndarray:
+    """Position of the highest set bit of uint64 values (0 for 0 and 1), int64, by binary search
+    (exact on uint64)."""
     n = np.zeros(x.shape, dtype=np.int64)
     for s in (32, 16, 8, 4, 2, 1):
         big = (x >> np.uint64(s)) != 0
         n += big * s
         x = np.where(big, x >> np.uint64(s), x)
-    n += (x != 0)
-    return LEVELS - (n + 2) // 3
+    return n
 
 
 def octree_parents(points: np.ndarray):
@@ -109,10 +114,4 @@ def octree_parents(points: np.ndarray):
 
 def _key_level(keys: np.ndarray) -> np.ndarray:
     """Octree level of sentinel-bit keys (bit length - 1) / 3."""
-    x = keys.copy()
-    n = np.zeros(x.shape, dtype=np.int64)
-    for s in (32, 16, 8, 4, 2, 1):
-        big = (x >> np.uint64(s)) != 0
-        n += big * s
-        x = np.where(big, x >> np.uint64(s), x)
-    return n // 3
+    return _floor_log2(keys) // 3

@@ -1,4 +1,4 @@
-"""Quadric-error vertex hierarchy (Garland & Heckbert 1997 edge collapses; seed 001 section 6.3).
+"""Quadric-error vertex hierarchy ([GH97] edge collapses; [LHNW00 §6.3]).
 
 Stages:
 
@@ -26,9 +26,9 @@ def vertex_quadrics(v: np.ndarray, f: np.ndarray, fn: np.ndarray | None = None) 
 
     Q(x) = x^T A x + 2 b.x + c = sum over incident triangles of area * (n.x + d)^2.
     """
-    if fn is None:
-        from ._mesh import face_normals
+    from ._mesh import corner_sum, face_normals
 
+    if fn is None:
         fn = face_normals(v, f)
     dbl = np.linalg.norm(fn, axis=1)
     n = np.divide(fn, dbl[:, None], out=np.zeros_like(fn), where=dbl[:, None] > 0)
@@ -38,11 +38,7 @@ def vertex_quadrics(v: np.ndarray, f: np.ndarray, fn: np.ndarray | None = None) 
         [n[:, 0] * n[:, 0], n[:, 0] * n[:, 1], n[:, 0] * n[:, 2], n[:, 1] * n[:, 1], n[:, 1] * n[:, 2],
          n[:, 2] * n[:, 2], n[:, 0] * d, n[:, 1] * d, n[:, 2] * d, d * d], axis=1
     ) * area[:, None]
-    out = np.zeros((v.shape[0], 10))
-    idx = f.T.ravel()
-    for k in range(10):
-        out[:, k] = np.bincount(idx, weights=np.tile(q[:, k], 3), minlength=v.shape[0])
-    return out
+    return corner_sum(f, q, v.shape[0])
 
 
 def quadric_optimal(q: np.ndarray, centroid: np.ndarray, reg: float = 1e-3) -> np.ndarray:

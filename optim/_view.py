@@ -1,4 +1,4 @@
-"""One viewpoint: camera, physical display geometry, gaze and motion (stage 2 of optim).
+"""One viewpoint: camera, physical display geometry, gaze and motion (the ``view`` step of optim).
 
 A :class:`View` says everything the per-view scoring (``optim.score``) needs to turn a node's bounding
 sphere (object units) into the quantities a contrast-sensitivity model takes:
@@ -10,10 +10,10 @@ sphere (object units) into the quantities a contrast-sensitivity model takes:
   the screen, so a size in pixels becomes a visual angle in degrees for *this* viewer;
 * gaze: one or more gaze points (pixels, or directions from the eye in object space), default the
   screen centre; with several viewers a node's eccentricity is the smallest over the gaze points
-  (Luebke & Hallen 2001, seed 004 section 8.4). ``gaze=None`` means no gaze information: every node is
+  [LH01 §8.4]. ``gaze=None`` means no gaze information: every node is
   treated as foveal (eccentricity 0) and the eccentricity term costs nothing;
-* ``gaze_error_deg``: gaze uncertainty (deg) subtracted from every eccentricity (seed 001 section 4.4:
-  about 1 deg for an eye tracker, about 15 deg when head tracking stands in for it, seed 003);
+* ``gaze_error_deg``: gaze uncertainty (deg) subtracted from every eccentricity [LHNW00 §4.4]:
+  about 1 deg for an eye tracker, about 15 deg when head tracking stands in for it [CAVE]);
 * ``previous`` and ``dt_s``: the view one time step (s) earlier, for the retinal velocity (deg/s) of
   each node's image. Without a previous view the velocity term costs nothing.
 
@@ -29,6 +29,8 @@ import math
 import equinox as eqx
 import numpy as np
 
+from pmetric import PlodError
+
 __all__ = ["View"]
 
 
@@ -36,11 +38,11 @@ def _vec3(name: str, x) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"View: {name} must be three numbers, got {x!r}") from None
+        raise PlodError(f"View: {name} must be three numbers, got {x!r}") from None
     if a.shape != (3,):
-        raise ValueError(f"View: {name} must be three numbers (shape (3,)), got shape {a.shape}")
+        raise PlodError(f"View: {name} must be three numbers (shape (3,)), got shape {a.shape}")
     if not np.isfinite(a).all():
-        raise ValueError(f"View: {name} must be finite, got {a.tolist()}")
+        raise PlodError(f"View: {name} must be finite, got {a.tolist()}")
     return a
 
 
@@ -48,10 +50,10 @@ def _positive(name: str, x, *, upper: float | None = None) -> float:
     try:
         v = float(x)
     except (TypeError, ValueError):
-        raise ValueError(f"View: {name} must be a number, got {x!r}") from None
+        raise PlodError(f"View: {name} must be a number, got {x!r}") from None
     if not math.isfinite(v) or v <= 0 or (upper is not None and v >= upper):
         rng = f"in (0, {upper})" if upper is not None else "> 0"
-        raise ValueError(f"View: {name} must be finite and {rng}, got {x!r}")
+        raise PlodError(f"View: {name} must be finite and {rng}, got {x!r}")
     return v
 
 
@@ -67,8 +69,9 @@ class View(eqx.Module):
     ``dt_s`` (s).
 
     ``gaze`` may be ``"center"`` (default: the screen centre), None, an array (G, 2) of pixel
-    coordinates, or an array (G, 3) of gaze directions from the eye in object space (each must point
-    in front of the camera).
+    coordinates (each on the image: in ``[0, width] x [0, height]``), or an array (G, 3) of gaze
+    directions from the eye in object space (each must point in front of the camera; it may look
+    past the screen edge).
     """
 
     eye: np.ndarray
@@ -108,13 +111,13 @@ class View(eqx.Module):
         self.up = _vec3("up", up)
         fwd = self.target - self.eye
         if np.linalg.norm(fwd) <= 1e-12 * max(1.0, np.linalg.norm(self.eye)):
-            raise ValueError("View: eye and target coincide; the viewing direction is undefined")
+            raise PlodError("View: eye and target coincide; the viewing direction is undefined")
         if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * max(np.linalg.norm(self.up), 1e-300):
-            raise ValueError("View: up must not be parallel to the viewing direction (target - eye)")
+            raise PlodError("View: up must not be parallel to the viewing direction (target - eye)")
         if display is None:
             display = pmetric.Display.default()
         if not isinstance(display, pmetric.Display):
-            raise ValueError(f"View: display must be a pmetric.Display, got {type(display).__name__}")
+            raise PlodError(f"View: display must be a pmetric.Display, got {type(display).__name__}")
         self.display = display
         pitch = display.pixel_pitch
         self._geom = (float(pitch[0]), float(pitch[1]), float(display.distance), float(display.degrees_per_pixel()))
@@ -123,10 +126,10 @@ class View(eqx.Module):
         try:
             w, h = (int(s) for s in image_size)
         except (TypeError, ValueError):
-            raise ValueError(
+            raise PlodError(
                 f"View: image_size must be two positive integers (width, height), got {image_size!r}") from None
         if w <= 0 or h <= 0:
-            raise ValueError(f"View: image_size must be two positive integers (width, height), got {image_size!r}")
+            raise PlodError(f"View: image_size must be two positive integers (width, height), got {image_size!r}")
         self.width, self.height = w, h
         if fov_deg is None:  # the physically correct camera: the image spans what the viewer sees of it
             py = float(display.height) / display.resolution[1]
@@ -134,23 +137,23 @@ class View(eqx.Module):
         self.fov_deg = _positive("fov_deg (vertical field of view, deg)", fov_deg, upper=180.0)
         ge = float(gaze_error_deg)
         if not math.isfinite(ge) or ge < 0:
-            raise ValueError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
+            raise PlodError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
         self.gaze_error_deg = ge
         bg = float(background)
         if not (0.0 <= bg <= 1.0):
-            raise ValueError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
+            raise PlodError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
         self.background = bg
         dist = float(np.linalg.norm(fwd))
         self.near = _positive("near (object units)", near) if near is not None else 1e-4 * dist
         if previous is not None:
             if not isinstance(previous, View):
-                raise ValueError(f"View: previous must be a View, got {type(previous).__name__}")
+                raise PlodError(f"View: previous must be a View, got {type(previous).__name__}")
             if dt_s is None:
-                raise ValueError("View: a previous view needs dt_s, the time step in seconds")
+                raise PlodError("View: a previous view needs dt_s, the time step in seconds")
             self.dt_s = _positive("dt_s (s)", dt_s)
         else:
             if dt_s is not None:
-                raise ValueError("View: dt_s given without a previous view")
+                raise PlodError("View: dt_s given without a previous view")
             self.dt_s = 0.0
         self.previous = previous
         self.gaze_px = self._gaze_pixels(gaze)
@@ -160,15 +163,15 @@ class View(eqx.Module):
                 **kw) -> "View":
         """A view looking at the centre of ``vertices`` (V, 3) from ``direction`` such that their bounding
         sphere (about the bounding-box centre) subtends ``object_deg`` degrees of the viewer's visual
-        field (default 30 deg: seed 004's study, an object on a 46 deg screen). ``kw`` go to ``View``
+        field (default 30 deg: the study of [LH01 §6.2], an object on a 46 deg screen). ``kw`` go to ``View``
         (``display``, ``gaze``, ``gaze_error_deg`` ...); the camera's field of view is the display's."""
         v = np.asarray(vertices, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-            raise ValueError(f"View.framing: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+            raise PlodError(f"View.framing: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
         deg = _positive("object_deg (deg)", object_deg, upper=180.0)
         d = _vec3("direction", direction)
         if np.linalg.norm(d) == 0:
-            raise ValueError("View.framing: direction must be nonzero")
+            raise PlodError("View.framing: direction must be nonzero")
         centre = 0.5 * (v.min(0) + v.max(0))
         radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
         radius = radius if radius > 0 else 1.0
@@ -241,22 +244,28 @@ class View(eqx.Module):
             return None
         if isinstance(gaze, str):
             if gaze != "center":
-                raise ValueError(f"View: gaze must be 'center', None, (G, 2) pixels or (G, 3) directions; got {gaze!r}")
+                raise PlodError(f"View: gaze must be 'center', None, (G, 2) pixels or (G, 3) directions; got {gaze!r}")
             return np.array([[0.5 * self.width, 0.5 * self.height]])
         try:
             g = np.asarray(gaze, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(
+            raise PlodError(
                 f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got {gaze!r}") from None
         if g.ndim == 1:
             g = g[None]
         if g.ndim != 2 or g.shape[0] == 0 or g.shape[1] not in (2, 3):
-            raise ValueError(f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got shape {g.shape}")
+            raise PlodError(f"View: gaze must be (G, 2) pixel coordinates or (G, 3) directions, got shape {g.shape}")
         if not np.isfinite(g).all():
-            raise ValueError("View: gaze contains a non-finite value")
+            raise PlodError("View: gaze contains a non-finite value")
         if g.shape[1] == 3:
             xy, depth = self.project(self.eye + g)
             if (depth <= 0).any():
-                raise ValueError("View: a gaze direction points behind the camera")
-            g = xy
+                raise PlodError("View: a gaze direction points behind the camera")
+            return xy  # may lie off the screen: a viewer can look past its edge
+        off = (g[:, 0] < 0) | (g[:, 0] > self.width) | (g[:, 1] < 0) | (g[:, 1] > self.height)
+        if off.any():
+            x, y = g[int(np.flatnonzero(off)[0])]
+            raise PlodError(f"View: gaze point ({x:g}, {y:g}) px is off the {self.width}x{self.height} image "
+                            f"(pixel gazes must lie in [0, {self.width}] x [0, {self.height}]; pass a (G, 3) "
+                            "direction to look past the screen edge)")
         return g

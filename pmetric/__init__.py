@@ -7,18 +7,24 @@ Every model answers two questions, vectorized and differentiable:
 
 Units throughout: spatial frequency ``f`` in cycles/deg, eccentricity ``e`` in deg,
 retinal velocity ``v`` in deg/s, Michelson contrast ``c`` in [0, 1], luminance in cd/m2.
+
+Models by name: ``make_model("stela")``, ``make_model("eccentric(manossakrison)")``,
+``make_model("fitted.json")``; ``default_model()`` is :data:`DEFAULT_MODEL` (Kelly's abstract CSF). Names
+are case-insensitive; ``model_entries()`` (and ``plod models``) list them with inputs and constants.
 """
 
 # Each private module adds its public names below (one import line per module).
 from ._errors import PlodError
 from ._atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from ._base import CSFModel
-from ._csf import Eccentric, KellyAbstract, KellySpatioTemporal, ManosSakrison, RovamoVirsu
-from ._acuity import ReddyAcuity, SmoothReddyAcuity
+from ._manos_sakrison import ManosSakrison
+from ._kelly import KellyAbstract, KellySpatioTemporal
+from ._eccentric import Eccentric, RovamoVirsu
+from ._acuity import ReddyAcuity
 from ._inverse import lambertw_m1
-from ._data import CalibrationData
 from ._display import Display, linear_to_srgb, michelson, michelson_range, relative_luminance, srgb_to_linear
 from ._barten import Barten
 from ._stela import StelaCSF
 from ._table import CalibratedCSF
-from ._serialize import load_model, model_from_dict, model_registry, model_to_dict, register_model, save_model
+from ._registry import DEFAULT_MODEL, ModelEntry, default_model, make_model, model_entries, model_registry, register_model
+from ._serialize import load_model, model_from_dict, model_to_dict, save_model

@@ -1,14 +1,13 @@
 """Reddy's visual-acuity model H(v, e) = G(v) M(e), capped at the display's highest frequency xi.
 
-Reference: M. Reddy, "Perceptually Optimized 3D Graphics", IEEE CG&A 21(5), 2001 (seed 000) Eq 4-5,
-built on Kelly 1979 (velocity) and Rovamo & Virsu 1979 (eccentricity).
+Reference: [Red01 Eq 4-5], built on [Kel79] (velocity) and [RV79] (eccentricity).
 
     G(v) = 60                          v <= 0.825 deg/s
            57.69 - 27.78 log10(v)      0.825 < v <= 118.3 deg/s
            0.1                         v > 118.3 deg/s
     M(e) = 1                           e <= 5.79 deg
            7.49 / (0.3 e + 1)^2        e > 5.79 deg
-    H'(v, e) = min(xi, G(v) M(e))      cycles/deg
+    H'(v, e) = min(xi, G(v) M(e))      cycles/deg   (the method: acuity(e, v), (e, v) order)
 
 The pieces join continuously, so they are written as ``G = clip(57.69 - 27.78 log10 v, 0.1, 60)`` and
 ``M = min(1, 7.49 / (0.3 e + 1)^2)`` (equal to the printed piecewise form up to the rounding of the
@@ -28,19 +27,20 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from ._base import LOG_CT_MAX, CSFModel, _is_tracer, check_inputs
-from ._csf import _clenshaw, _param
+from ._base import LOG_CT_MAX, CSFModel, check_inputs, param
+from ._numerics import clenshaw, is_tracer
 from ._inverse import implicit_root, implicit_solution, largest_crossing
 
-__all__ = ["ReddyAcuity", "SmoothReddyAcuity"]
+__all__ = ["ReddyAcuity"]
 
 _BIG = 1e30  # stands in for xi = None (no display cap): finite so gradients stay finite
 _P = 200.0  # p-norm soft minimum: relative error <= 1 - 2^(-1/200) = 0.35 % at a knot
 
 
 def _dtype(*xs):
-    """Floating dtype of the inputs (the fields are cast to it)."""
-    return jnp.result_type(*(jnp.asarray(x).dtype for x in xs), float)
+    """Floating dtype of the inputs (the fields are cast to it; as :meth:`CSFModel._like`, a weakly typed
+    input such as a Python scalar does not promote)."""
+    return jnp.result_type(*(jnp.asarray(x) for x in xs), float)
 
 
 def _softmin_log(la, lb):
@@ -54,10 +54,10 @@ class ReddyAcuity(CSFModel):
     Fields (fittable arrays): ``g_max = 60``, ``g_intercept = 57.69``, ``g_slope = 27.78``,
     ``g_min = 0.1`` (cycles/deg), ``m_scale = 7.49``, ``m_rate = 0.3`` (1/deg) and ``xi``: the display's
     highest frequency ``1 / (2 pixel angle in deg)`` in cycles/deg (``None`` = no display cap).
-    ``smooth=True`` (or :class:`SmoothReddyAcuity`) replaces every min/max by a p-norm soft minimum
+    ``smooth=True`` replaces every min/max by a p-norm soft minimum
     (p = 200) and a softplus floor, within 1 % of the exact model everywhere, for gradient fitting.
 
-    :meth:`acuity` is H'; :meth:`sensitivity` is the step ``exp(+-LOG_CT_MAX)`` (about 1e26 below H',
+    :meth:`acuity` is H' (arguments ``(e, v)``, the order of every method); :meth:`sensitivity` is the step ``exp(+-LOG_CT_MAX)`` (about 1e26 below H',
     1e-26 above), so :meth:`threshold_contrast` is ~0 for visible and ~1e26 for invisible frequencies;
     :meth:`peak_frequency` is 0 (sensitivity is flat on [0, H']), :meth:`threshold_frequency` is H' for
     c > 0. :meth:`imperceptible_distance` solves ``k = 2 theta H'(v/k, e/k)`` exactly: one closed-form
@@ -99,13 +99,13 @@ class ReddyAcuity(CSFModel):
         m_scale=7.49,
         m_rate=0.3,
     ):
-        self.xi = _param(_BIG if xi is None else xi, "ReddyAcuity.xi")
-        self.g_max = _param(g_max, "ReddyAcuity.g_max")
-        self.g_intercept = _param(g_intercept, "ReddyAcuity.g_intercept")
-        self.g_slope = _param(g_slope, "ReddyAcuity.g_slope")
-        self.g_min = _param(g_min, "ReddyAcuity.g_min")
-        self.m_scale = _param(m_scale, "ReddyAcuity.m_scale")
-        self.m_rate = _param(m_rate, "ReddyAcuity.m_rate")
+        self.xi = param(_BIG if xi is None else xi, "ReddyAcuity.xi")
+        self.g_max = param(g_max, "ReddyAcuity.g_max")
+        self.g_intercept = param(g_intercept, "ReddyAcuity.g_intercept")
+        self.g_slope = param(g_slope, "ReddyAcuity.g_slope")
+        self.g_min = param(g_min, "ReddyAcuity.g_min")
+        self.m_scale = param(m_scale, "ReddyAcuity.m_scale")
+        self.m_rate = param(m_rate, "ReddyAcuity.m_rate")
         self.smooth = bool(smooth)
 
     # ------------------------------------------------------------------ the acuity surface
@@ -131,53 +131,47 @@ class ReddyAcuity(CSFModel):
             return jnp.minimum(lm, 0.0)
         return _softmin_log(lm, jnp.zeros_like(lm))
 
-    def _log_gm(self, v, e, dtype):
+    def _log_gm(self, e, v, dtype):
         return self._log_g(v, dtype) + self._log_m(e, dtype)
 
-    def log_acuity(self, v, e):
-        """ln H'(v, e) (H' in cycles/deg); v deg/s, e deg."""
-        v, e = jnp.asarray(v), jnp.asarray(e)
-        dtype = _dtype(v, e)
-        v, e = v.astype(dtype), e.astype(dtype)
-        lh = self._log_gm(v, e, dtype)
+    def log_acuity(self, e=0.0, v=0.0):
+        """ln H'(v, e) (H' in cycles/deg); e deg, v deg/s (not checked: for gradients and internal use)."""
+        e, v = jnp.asarray(e), jnp.asarray(v)
+        dtype = _dtype(e, v)
+        e, v = e.astype(dtype), v.astype(dtype)
+        lh = self._log_gm(e, v, dtype)
         lxi = jnp.log(self._consts(dtype)[6])
         return _softmin_log(lh, lxi) if self.smooth else jnp.minimum(lh, lxi)
 
-    def acuity(self, v=0.0, e=0.0):
-        """H'(v, e) = min(xi, G(v) M(e)) in cycles/deg for velocity v (deg/s), eccentricity e (deg)."""
-        v, e = check_inputs("acuity", v=v, e=e)
-        return jnp.exp(self.log_acuity(v, e))
+    def acuity(self, e=0.0, v=0.0):
+        """H'(v, e) = min(xi, G(v) M(e)) in cycles/deg at eccentricity e (deg) and velocity v (deg/s)."""
+        e, v = check_inputs("acuity", e=e, v=v)
+        return jnp.exp(self._like(e, v).log_acuity(e, v))
 
     # ------------------------------------------------------------------ CSF interface
-    def log_sensitivity(self, f, e=0.0, v=0.0):
-        f = jnp.asarray(f)
-        visible = f <= jnp.exp(self.log_acuity(v, e))
+    def _log_sensitivity(self, f, e, v):
+        """Step: ``LOG_CT_MAX`` where f <= H'(v, e), ``-LOG_CT_MAX`` above."""
+        visible = f <= jnp.exp(self.log_acuity(e, v))
         out = jnp.where(visible, LOG_CT_MAX, -LOG_CT_MAX).astype(_dtype(f, e, v))
         return jnp.broadcast_to(out, jnp.broadcast_shapes(f.shape, jnp.shape(e), jnp.shape(v)))
-
-    def sensitivity(self, f, e=0.0, v=0.0):
-        """Step: exp(LOG_CT_MAX) (~1e26) where f <= H'(v, e), exp(-LOG_CT_MAX) above."""
-        f, e, v = check_inputs("sensitivity", f=f, e=e, v=v)
-        return jnp.exp(self.log_sensitivity(f, e, v))
 
     def _peak_frequency(self, e, v):
         shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
         return jnp.zeros(shape, _dtype(e, v))
 
-    def is_perceptible(self, c, f, e=0.0, v=0.0):
+    def _is_perceptible(self, c, f, e, v):
         """``c > 0`` and ``f <= H'(v, e)`` (any nonzero contrast is treated as contrast 1)."""
-        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
-        return (c > 0) & (jnp.log(jnp.maximum(f, 1e-30)) <= self.log_acuity(v, e))
+        return (c > 0) & (jnp.log(jnp.maximum(f, 1e-30)) <= self.log_acuity(e, v))
 
     def _threshold_frequency(self, c, e, v):
-        return jnp.where(c > 0, jnp.exp(self.log_acuity(v, e)), 0.0)
+        return jnp.where(c > 0, jnp.exp(self.log_acuity(e, v)), 0.0)
 
     def _rho(self, w, theta, e, v):
         """log(2 theta H'(v/k, e/k)) - log k at k = exp(w): perceptible iff >= 0."""
         k = jnp.exp(w)
-        return jnp.log(2.0 * theta) + self.log_acuity(v / k, e / k) - w
+        return jnp.log(2.0 * theta) + self.log_acuity(e / k, v / k) - w
 
-    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+    def _imperceptible_distance(self, c, theta, e, v):
         """Largest k with ``k / (2 theta) <= H'(v / k, e / k)`` (0 where c = 0 or theta = 0); theta deg.
 
         ``e`` in deg, ``v`` in deg/s, ``k`` a dimensionless multiple of the viewing distance. See
@@ -190,7 +184,6 @@ class ReddyAcuity(CSFModel):
         Gradients: implicit-function theorem on ``ln(2 theta H') = ln k`` (exact model:
         :func:`implicit_solution`, so the forward pass is the solve alone).
         """
-        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = _dtype(c, theta, e, v)
         c_b, th_b, e_b, v_b = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, e, v))
@@ -216,7 +209,7 @@ class ReddyAcuity(CSFModel):
         reach ``u = G / s`` beyond the Chebyshev start of :func:`_u_root` (``g_max / s > 11.4``; Reddy's
         constants: 4.97)."""
         gmax, gsl, ms = self.g_max, self.g_slope, self.m_scale
-        if any(_is_tracer(x) for x in (gmax, gsl, ms)):
+        if any(is_tracer(x) for x in (gmax, gsl, ms)):
             return None
         far = np.asarray(gmax, float) * math.log(10.0) / np.asarray(gsl, float) > _U_FAR
         return bool(np.any(np.asarray(ms, float) < 4.0)), bool(np.any(far))
@@ -228,7 +221,7 @@ class ReddyAcuity(CSFModel):
         :func:`_exact_k`). Written for ``y = k / (2 theta)``, the frequency (cycles/deg) of the change at
         distance multiple k: the answer is the largest y with ``y <= H'`` at ``v/k = x / y``,
         ``e/k = (e / 2 theta) / y`` (``x = v / 2 theta``). There ``y = H'`` on one piece of
-        ``H' = min(xi, G M)`` (seed 000 Eq 4-5), and every piece's equation has its largest root in closed
+        ``H' = min(xi, G M)`` [Red01 Eq 4-5], and every piece's equation has its largest root in closed
         form -- G, M constant: ``y = g``; the display cap: ``y = xi``; G's middle piece
         (``G = ga - s ln(v/k)``) with M = 1: ``y = s u`` with ``u - ln u = t`` (the Lambert
         ``-W_{-1}(-e^-t)``, :func:`_u_root`); G constant with M's outer piece ``ms k^2 / (q + k)^2``: a
@@ -320,14 +313,14 @@ def _u_root(t, far):
     float32, 16 in float64, relative error 4e-9 / 1e-13; near the branch point p -> 0, where the
     problem is ill-conditioned, it is as exact as t). Float64 adds one Halley step (cubic convergence,
     one exp) on ``a(u) = u - exp(u - t)`` (the scaled ``u e^-u - e^-t``: no overflow). ``far=True``
-    also covers p > 4 with the asymptotic ``t + ln t + ln t / t + ...`` (Corless et al. 1996 eq 4.19)
+    also covers p > 4 with the asymptotic ``t + ln t + ln t / t + ...`` ([Cor96 Eq 4.19])
     and two (float32) / three (float64) Halley steps; otherwise the values there are not the root.
     Elementwise, no loop.
     """
     f64 = jnp.finfo(t.dtype).bits > 32
     p = jnp.sqrt(2.0 * jnp.maximum(t - 1.0, 0.0))
     cheb = _U_CHEB64 if f64 else _U_CHEB32
-    u = jnp.maximum(_clenshaw(jnp.minimum(p, _U_P) * (2.0 / _U_P) - 1.0, cheb), 1.0)
+    u = jnp.maximum(clenshaw(jnp.minimum(p, _U_P) * (2.0 / _U_P) - 1.0, cheb), 1.0)
     steps = 1 if f64 else 0
     if far:
         lt = jnp.log(jnp.maximum(t, 1.0))
@@ -425,11 +418,3 @@ def _exact_k(mode, model, c, theta, e, v):
 def _rho_k(k, model, theta, e, v):
     """``rho`` at distance multiple ``k`` (for the implicit derivative)."""
     return model._rho(jnp.log(k), theta, e, v)
-
-
-class SmoothReddyAcuity(ReddyAcuity):
-    """:class:`ReddyAcuity` with ``smooth=True``: differentiable everywhere, within 1 % of H'."""
-
-    def __init__(self, xi=None, **kw):
-        kw.setdefault("smooth", True)
-        super().__init__(xi, **kw)

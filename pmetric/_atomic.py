@@ -2,38 +2,145 @@
 
 Outputs are written to a temporary file in the destination folder and moved into place with
 ``os.replace``, so a crash never leaves a half-written file and readers never see one.
+
+Temporary files are named ``.NAME.plod-tmp-HOST-PID-RANDOM[SUFFIX]`` (``NAME`` the target's file
+name, ``HOST`` a 6-hex tag of the host name, ``PID`` the writing process, ``SUFFIX`` the target's
+suffix, kept so writers that pick a format from the name still work). They are removed on any
+exception (``KeyboardInterrupt`` included). A process killed outright (SIGKILL, power loss) cannot
+clean up, so every write first removes the stale temporary files *of the same target* in that
+folder: those of this host whose process is gone, and any older than :data:`STALE_AFTER_S`.
+
+Permissions: a new file gets ``0666 & ~umask`` (like ``open(path, "w")``); overwriting an existing
+file keeps that file's permission bits.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
-import tempfile
+import re
+import secrets
+import socket
+import stat
+import time
 from pathlib import Path
 from typing import Iterator
+
+from ._errors import PlodError
+
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "STALE_AFTER_S", "TMP_TAG"]
+
+TMP_TAG = ".plod-tmp-"
+"""Marker in every temporary file name of :func:`atomic_path`."""
+
+STALE_AFTER_S = 3600.0
+"""A temporary file untouched for this long (s) is stale whatever its PID (PID reuse, other hosts)."""
+
+
+def _host_tag() -> str:
+    return hashlib.sha1(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:6]
+
+
+def _tmp_regex(name: str) -> re.Pattern:
+    return re.compile(r"\." + re.escape(name) + re.escape(TMP_TAG) + r"([0-9a-f]{6})-(\d+)-[0-9a-f]+.*\Z", re.S)
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    except OSError:
+        return True  # unknown: keep the file (the age rule still applies)
+    return True
+
+
+def remove_stale_temps(dest: str | os.PathLike, *, now: float | None = None) -> list[Path]:
+    """Remove the stale temporary files of target ``dest`` (see the module docstring); returns them.
+
+    Never raises for files it cannot remove or folders it cannot list.
+    """
+    dest = Path(dest)
+    rx = _tmp_regex(dest.name)
+    host = _host_tag()
+    me = os.getpid()
+    now = time.time() if now is None else now
+    removed = []
+    try:
+        entries = list(os.scandir(dest.parent))
+    except OSError:
+        return removed
+    for e in entries:
+        m = rx.match(e.name)
+        if m is None:
+            continue
+        try:
+            if not e.is_file(follow_symlinks=False):
+                continue
+            age = now - e.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        tag, pid = m.group(1), int(m.group(2))
+        dead = tag == host and pid != me and not _pid_alive(pid)
+        if dead or age > STALE_AFTER_S:
+            with contextlib.suppress(OSError):
+                os.unlink(e.path)
+                removed.append(Path(e.path))
+    return removed
+
+
+def _new_temp(dest: Path) -> Path:
+    """Create (O_EXCL) an empty temporary file beside ``dest``, mode ``0666 & ~umask``."""
+    prefix = f".{dest.name}{TMP_TAG}{_host_tag()}-{os.getpid()}-"
+    for _ in range(100):
+        tmp = dest.parent / f"{prefix}{secrets.token_hex(4)}{dest.suffix}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(f"cannot create a temporary file beside {str(dest)!r}")
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, protect: tuple[str | os.PathLike, ...] = ()) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success move it onto ``path`` atomically.
 
-    ``protect`` lists input files that must never be overwritten: a ``ValueError`` is raised before
-    anything is written when ``path`` resolves to one of them.
+    ``protect`` lists input files that must never be overwritten: a :class:`PlodError` (a
+    ``ValueError``) is raised before anything is written when ``path`` resolves to one of them.
+    The caller writes the temporary path (by name: it already exists, empty). A new ``path`` gets
+    mode ``0666 & ~umask``; an existing one keeps its permission bits. On any exception the
+    temporary file is removed and ``path`` is left as it was.
     """
     dest = Path(path)
     for p in protect:
         if p is not None and Path(p).exists() and dest.exists() and os.path.samefile(dest, p):
-            raise ValueError(f"refusing to overwrite the input file {str(p)!r}; choose another output path")
+            raise PlodError(f"refusing to overwrite the input file {str(p)!r}; choose another output path")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=dest.suffix or ".tmp", dir=dest.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    remove_stale_temps(dest)
+    tmp_path: Path | None = None
     try:
+        tmp_path = _new_temp(dest)
         yield tmp_path
+        try:
+            mode = stat.S_IMODE(os.stat(dest).st_mode)
+        except FileNotFoundError:
+            mode = None
+        except OSError:
+            mode = None
+        if mode is not None:
+            os.chmod(tmp_path, mode)
         os.replace(tmp_path, dest)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
+        if tmp_path is not None:
+            with contextlib.suppress(OSError):
+                tmp_path.unlink()
         raise
 
 

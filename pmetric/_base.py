@@ -1,33 +1,39 @@
-"""The common interface of every contrast-sensitivity model: :class:`CSFModel`.
+"""The common interface of every contrast-sensitivity model: :class:`CSFModel`, and its input checks.
 
 Units: spatial frequency ``f`` in cycles/deg, eccentricity ``e`` in deg, retinal velocity ``v`` in
 deg/s, Michelson contrast ``c`` (dimensionless, in [0, 1]), angular size ``theta`` in deg.
 
-A subclass only has to implement :meth:`CSFModel.sensitivity` (or :meth:`CSFModel.log_sensitivity`
-plus ``sensitivity = exp(log_sensitivity)``); the base class derives every other question from it with
-generic, exact numerical methods (grid bracketing + safeguarded Newton, implicit-function gradients).
-Subclasses override them with closed forms where these exist (see ``_csf.py``).
+The contract (see :class:`CSFModel`): the public methods are written once, here; each checks and casts
+its inputs once and calls a private hook that a model implements. Generic, exact numerical hooks
+(grid bracketing + safeguarded Newton, implicit-function gradients) derive every question from
+``_log_sensitivity``; models override them with closed forms where these exist.
 
 Input checking: outside ``jax.jit`` (concrete inputs) a negative or NaN frequency / eccentricity /
-velocity / contrast / size raises ``ValueError`` naming the argument. Under ``jit`` values are not
-checked: NaN inputs propagate to NaN outputs (``is_perceptible`` then returns False) and negative
-inputs give unspecified results. Shapes that do not broadcast raise ``ValueError`` at trace time.
+velocity / contrast / size raises :class:`pmetric.PlodError` (a ``ValueError``) naming the argument.
+Under ``jit`` values are not checked: NaN inputs propagate to NaN outputs (``is_perceptible`` then
+returns False) and negative inputs give unspecified results. Shapes that do not broadcast raise
+``PlodError`` at trace time.
 """
 
 from __future__ import annotations
 
-import abc
+import functools
+import types
 from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from equinox._module._prebuilt import BoundMethod
 from jax import lax
 
+from ._errors import PlodError
 from ._inverse import bracketed_root, implicit_root, largest_crossing
+from ._numerics import as_float, is_tracer, log_guard
 
-__all__ = ["CSFModel", "as_float", "check_inputs", "LOG_CT_MAX"]
+__all__ = ["CSFModel", "as_float", "check_inputs", "fill_nan", "param", "float_param", "distance_margin_k",
+           "LOG_CT_MAX"]
 
 #: threshold contrasts are capped at exp(LOG_CT_MAX) (about 1e26): finite in float32, "invisible".
 LOG_CT_MAX = 60.0
@@ -37,23 +43,12 @@ _F_LO, _F_HI = 1e-4, 1e4
 _N_GRID = 257  # grid points of the generic distance scan: ln(1e8) / 256 = 0.072 per step
 
 
-def _is_tracer(x) -> bool:
-    return isinstance(x, jax.core.Tracer)
-
-
-def as_float(x):
-    """``x`` as a floating JAX array (integers and bools become the default float dtype)."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
+# --------------------------------------------------------------------------- inputs and constants
 def check_inputs(_method: str, **arrays):
     """Convert keyword arrays to float arrays, check they broadcast and (when concrete) their values.
 
-    Every argument must be >= 0 and not NaN (``+inf`` is allowed). Raises ``ValueError`` naming the
-    argument. Returns the converted arrays in the order given.
+    Every argument must be >= 0 and not NaN (``+inf`` is allowed). Raises :class:`PlodError` naming the
+    argument. Returns the converted arrays in the order given (``None`` stays ``None``).
     """
     out = []
     shapes = {}
@@ -62,32 +57,117 @@ def check_inputs(_method: str, **arrays):
             out.append(None)
             continue
         if isinstance(x, (str, bytes)):
-            raise ValueError(f"{_method}: {name} must be a number or an array, got {x!r}")
+            raise PlodError(f"{_method}: {name} must be a number or an array, got {x!r}")
         try:
             xa = as_float(x)
         except TypeError as err:
-            raise ValueError(f"{_method}: {name} must be a number or an array of numbers ({err})") from None
-        if not _is_tracer(xa):
+            raise PlodError(f"{_method}: {name} must be a number or an array of numbers ({err})") from None
+        if not is_tracer(xa):
             xn = np.asarray(xa)
             if np.isnan(xn).any():
-                raise ValueError(f"{_method}: {name} contains NaN")
+                raise PlodError(f"{_method}: {name} contains NaN")
             if (xn < 0).any():
-                raise ValueError(f"{_method}: {name} must be >= 0 (got min {xn.min()!r})")
+                raise PlodError(f"{_method}: {name} must be >= 0 (got min {xn.min()!r})")
         shapes[name] = xa.shape
         out.append(xa)
     try:
         np.broadcast_shapes(*shapes.values())
     except ValueError:
         desc = ", ".join(f"{k} {v}" for k, v in shapes.items())
-        raise ValueError(f"{_method}: argument shapes do not broadcast: {desc}") from None
+        raise PlodError(f"{_method}: argument shapes do not broadcast: {desc}") from None
     return out
 
 
-def _log_guard(x):
-    """log(x) for x >= 0 with finite value and gradient at 0 (log of the smallest normal instead)."""
-    x = jnp.asarray(x)
-    # floor 1e-30 (log = -69, beyond LOG_CT_MAX): 1/floor stays finite in float32 gradients
-    return jnp.log(jnp.maximum(x, 1e-30))
+def fill_nan(x, default):
+    """Concrete NaN entries of ``x`` (unknown luminance/area in a data set) replaced by ``default``."""
+    if x is None:
+        return default
+    if not is_tracer(x):
+        a = np.asarray(x)
+        if np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
+            return jnp.asarray(np.where(np.isnan(a), default, a), dtype=jnp.asarray(x).dtype)
+    return x
+
+
+def float_param(value):
+    """A model constant as an array of the default float dtype (no check)."""
+    return jnp.asarray(value, dtype=jnp.result_type(float))
+
+
+def param(value, name: str, *, positive: bool = True):
+    """A model constant as a float array; concrete values are checked (finite, > 0 unless
+    ``positive=False``), else :class:`PlodError` naming ``name``."""
+    arr = float_param(value)
+    if not is_tracer(arr):
+        a = np.asarray(arr)
+        if not np.all(np.isfinite(a)):
+            raise PlodError(f"{name} must be finite, got {value!r}")
+        if positive and np.any(a <= 0):
+            raise PlodError(f"{name} must be > 0, got {value!r}")
+    return arr
+
+
+def distance_margin_k(k, model, c, theta, e, v):
+    """``model._distance_margin`` at distance multiple ``k`` as a function of its arguments only (the
+    margin :func:`pmetric._inverse.implicit_solution` differentiates)."""
+    return model._distance_margin(k, c, theta, e, v)
+
+
+# --------------------------------------------------------------------------- the method contract
+class _BoundCSFMethod(BoundMethod):
+    """A public method bound to a model: an equinox ``BoundMethod`` (a pytree, so ``eqx.filter_jit`` /
+    ``eqx.filter_grad`` of ``model.method`` treat the model's arrays as inputs) that hashes and compares
+    like a Python bound method (its function and the identity of the model), so that
+    ``jax.jit(model.method)`` works too (the model's constants are then compile-time constants).
+    The model itself keeps equinox's value semantics."""
+
+    def __hash__(self):
+        return hash((self.__func__, id(self.__self__)))
+
+    def __eq__(self, other):
+        return (type(other) is type(self) and self.__func__ is other.__func__
+                and self.__self__ is other.__self__)
+
+
+class _public:
+    """Decorator of the public methods of :class:`CSFModel`: binds them as :class:`_BoundCSFMethod`.
+    Accessed on the class it gives the plain function (``CSFModel.imperceptible_distance(m, ...)``)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, objtype=None):
+        return self.fn if obj is None else _BoundCSFMethod(self.fn, obj)
+
+
+class _hook_with_legacy:
+    """The base ``_log_sensitivity``: abstract (the model cannot be built) unless the subclass
+    implements ``_log_sensitivity``, ``_sensitivity``, or (the former contract) overrides the public
+    ``log_sensitivity`` or ``sensitivity``, from which the default then derives log S."""
+
+    __isabstractmethod__ = True  # on CSFModel itself
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, objtype=None):
+        if obj is not None:
+            return types.MethodType(self.fn, obj)
+        if any(getattr(objtype, n) is not getattr(CSFModel, n)
+               for n in ("_sensitivity", "log_sensitivity", "sensitivity")):
+            return self.fn
+        return _abstract(self.fn)
+
+
+def _abstract(fn):
+    @functools.wraps(fn)
+    def hook(*a, **k):
+        return fn(*a, **k)
+
+    hook.__isabstractmethod__ = True
+    return hook
 
 
 class CSFModel(eqx.Module):
@@ -96,13 +176,42 @@ class CSFModel(eqx.Module):
     Fitted constants are floating array fields; switches are static fields. All methods broadcast
     their arguments (numpy rules) and are jit / vmap / grad clean in float32 and float64.
 
-    Subclasses implement :meth:`sensitivity` (S = 1 / threshold contrast) and set the class variables
-    ``inputs`` (which of ``"f", "e", "v", "luminance", "area"`` the model depends on) and
-    ``param_bounds`` (valid range of each fittable field, ``None`` = unbounded).
+    **Contract.** The public methods -- :meth:`sensitivity`, :meth:`log_sensitivity`,
+    :meth:`stimulus_sensitivity`, :meth:`threshold_contrast`, :meth:`peak_frequency`,
+    :meth:`is_perceptible`, :meth:`threshold_frequency`, :meth:`imperceptible_distance` -- are written
+    once, here. Each checks its inputs once (:func:`check_inputs`: float arrays that broadcast; when
+    concrete, >= 0 and not NaN, else :class:`pmetric.PlodError`), casts the model's constants to the
+    inputs' dtype once (:meth:`_like`), calls the matching private hook and broadcasts the result to
+    the inputs' shape. Arguments come in the order ``(f, e, v)`` (contrast ``c`` and size ``theta``
+    first where they apply). A model implements hooks only; they receive checked float arrays of a
+    common dtype and may assume the model is cast to it:
 
-    Generic methods assume, as every CSF here satisfies, that sensitivity falls monotonically with
-    frequency above the peak frequency (the "falling limb"). Reference: Luebke & Hallen 2001 (seed 004)
-    sections 3.1, 5.3 and 6.1 for the worst-case use of the peak below it and the distance key.
+    * ``_log_sensitivity(f, e, v)`` -- ln S, finite (required; or ``_sensitivity``, from which the
+      default takes a guarded log);
+    * ``_sensitivity(f, e, v)`` -- S (default ``exp(_log_sensitivity)``);
+    * ``_stimulus_log_sensitivity(f, e, v, luminance, area)`` / ``_stimulus_sensitivity(...)`` -- for
+      models with luminance / area terms (defaults ignore them);
+    * ``_peak_frequency(e, v)``, ``_is_perceptible(c, f, e, v)``, ``_threshold_frequency(c, e, v)``,
+      ``_imperceptible_distance(c, theta, e, v)`` -- generic exact defaults below, closed forms in the
+      models;
+    * ``_distance_margin(k, c, theta, e, v)`` -- THE perceptibility margin ``ln c - ln c_T`` at
+      distance multiple ``k`` (perceptible iff >= 0), what the distance solvers and their
+      implicit-function gradients use.
+
+    Also set the class variables ``inputs`` (which of ``"f", "e", "v", "luminance", "area"`` the model
+    depends on) and ``param_bounds`` (valid range of each fittable field, ``None`` = unbounded). A
+    subclass written for the former contract (overriding the public ``sensitivity`` or
+    ``log_sensitivity`` without checks) still works: the default hooks derive from it.
+
+    **jit.** ``jax.jit(model.imperceptible_distance)`` works (the bound method hashes by the model's
+    identity; the constants are baked into the compiled function, which is recompiled for every
+    model). To trace the constants instead (one compilation for many models, gradients with respect to
+    them) write ``eqx.filter_jit(model.imperceptible_distance)`` or
+    ``jax.jit(lambda m, c, t: m.imperceptible_distance(c, t))(model, c, t)``.
+
+    Generic hooks assume, as every CSF here satisfies, that sensitivity falls monotonically with
+    frequency above the peak frequency (the "falling limb"); below it the peak's threshold is used,
+    the worst case of [LH01 §3.1, §6.1], and the distance key is that of [LH01 §5.3].
     """
 
     inputs: ClassVar[tuple[str, ...]] = ("f",)
@@ -129,51 +238,161 @@ class CSFModel(eqx.Module):
         with jax.ensure_compile_time_eval():
             return jax.tree_util.tree_map(cast, self)
 
-    # ----------------------------------------------------------------- the model
-    @abc.abstractmethod
+    def _concrete_fields(self, names, dtype):
+        """The fields ``names`` as float64 numpy arrays of their values in ``dtype`` (what the generic
+        path computes with), for the per-model fast paths that precompute at trace time; None for a
+        dtype other than float32 / float64 or when a field is traced (fitting, gradients)."""
+        dtype = jnp.dtype(dtype)
+        vals = [getattr(self, name) for name in names]
+        if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)) or any(is_tracer(x) for x in vals):
+            return None
+        return [np.asarray(x).astype(dtype).astype(np.float64) for x in vals]
+
+    def _checked(self, method: str, **arrays):
+        """``(model cast to the inputs' dtype, checked inputs..., broadcast shape)``."""
+        xs = check_inputs(method, **arrays)
+        shape = jnp.broadcast_shapes(*(x.shape for x in xs if x is not None))
+        return (self._like(*xs), *xs, shape)
+
+    # ----------------------------------------------------------------- public methods (written once)
+    @_public
     def sensitivity(self, f, e=0.0, v=0.0):
         """Contrast sensitivity S = 1/c_T at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
         retinal velocity ``v`` (deg/s); broadcast shape of the inputs."""
+        m, f, e, v, shape = self._checked("sensitivity", f=f, e=e, v=v)
+        return jnp.broadcast_to(m._sensitivity(f, e, v), shape)
 
-    def log_sensitivity(self, f, e=0.0, v=0.0):
-        """Natural log of :meth:`sensitivity` (finite: sensitivities below the smallest normal float
-        are clamped). Subclasses override it with a closed form that never underflows."""
-        return _log_guard(self.sensitivity(f, e, v))
+    @_public
+    def log_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None):
+        """Natural log of :meth:`stimulus_sensitivity` (finite: a closed form that never underflows, or
+        sensitivities below 1e-30 clamped); ``luminance`` (cd/m2) and ``area`` (deg2) as there."""
+        return self._stimulus("log_sensitivity", True, f, e, v, luminance=luminance, area=area)
 
+    @_public
     def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None):
         """Sensitivity for a calibration stimulus of mean ``luminance`` (cd/m2) and ``area`` (deg2).
 
-        The base implementation ignores luminance and area (models without such terms); models with
-        them (Barten, stelaCSF) override it.
-        """
-        return self.sensitivity(f, e, v)
+        Models without such terms ignore luminance and area (they are then not checked); models with
+        them (Barten, stelaCSF) default them to their fields, also for NaN entries (unknown in a data
+        set)."""
+        return self._stimulus("stimulus_sensitivity", False, f, e, v, luminance=luminance, area=area)
 
-    # ----------------------------------------------------------------- thresholds
+    def _stimulus(self, method, log, f, e, v, **extra):
+        """Shared body of :meth:`log_sensitivity` and :meth:`stimulus_sensitivity` (``extra``:
+        luminance, area and, for stelaCSF, vis_field)."""
+        for name in ("luminance", "area"):
+            if name not in self.inputs:
+                extra[name] = None
+            elif getattr(self, name, None) is not None:
+                extra[name] = fill_nan(extra[name], getattr(self, name))
+        m, f, e, v, *xs, shape = self._checked(f"{type(self).__name__}.{method}", f=f, e=e, v=v, **extra)
+        kw = dict(zip(extra, xs))
+        out = m._stimulus_log_sensitivity(f, e, v, **kw) if log else m._stimulus_sensitivity(f, e, v, **kw)
+        return jnp.broadcast_to(out, shape)
+
+    @_public
     def threshold_contrast(self, f, e=0.0, v=0.0):
         """Threshold Michelson contrast c_T = 1/S (capped at ``exp(LOG_CT_MAX)``, about 1e26)."""
-        f, e, v = check_inputs("threshold_contrast", f=f, e=e, v=v)
-        self = self._like(f, e, v)
-        return jnp.exp(jnp.minimum(-self.log_sensitivity(f, e, v), LOG_CT_MAX))
+        m, f, e, v, shape = self._checked("threshold_contrast", f=f, e=e, v=v)
+        return jnp.broadcast_to(jnp.exp(jnp.minimum(-m._log_sensitivity(f, e, v), LOG_CT_MAX)), shape)
 
+    @_public
     def peak_frequency(self, e=0.0, v=0.0):
         """Frequency (cycles/deg) of peak sensitivity at eccentricity ``e`` and velocity ``v``.
 
         Generic: the best of a 49-point log grid over [1e-3, 1e3] cycles/deg refined by golden-section
         search to ~1e-5 relative; its gradient is the implicit-function derivative of
-        d(log S)/d(log f) = 0. Subclasses override with closed forms.
+        d(log S)/d(log f) = 0. Models override ``_peak_frequency`` with closed forms.
         """
-        e, v = check_inputs("peak_frequency", e=e, v=v)
-        self = self._like(e, v)
-        return self._peak_frequency(e, v)
+        m, e, v, shape = self._checked("peak_frequency", e=e, v=v)
+        return jnp.broadcast_to(m._peak_frequency(e, v), shape)
 
+    @_public
+    def is_perceptible(self, c, f, e=0.0, v=0.0):
+        """True where contrast ``c`` at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
+        velocity ``v`` (deg/s) is visible: ``c >= c_T(max(f, f_peak(e, v)), e, v)`` (below the peak
+        frequency the peak's threshold is used, the worst case of [LH01 §3.1, §6.1]).
+        Bool array of the broadcast shape. NaN inputs under jit give False."""
+        m, c, f, e, v, shape = self._checked("is_perceptible", c=c, f=f, e=e, v=v)
+        return jnp.broadcast_to(m._is_perceptible(c, f, e, v), shape)
+
+    @_public
+    def threshold_frequency(self, c, e=0.0, v=0.0):
+        """Highest frequency (cycles/deg) at which Michelson contrast ``c`` is still visible at
+        eccentricity ``e`` and velocity ``v``; 0 where ``c`` is invisible at every frequency.
+
+        Inverse of the falling limb: ``threshold_contrast(threshold_frequency(c)) == c`` where the
+        result is positive. Generic: safeguarded Newton in log f between the peak frequency and 1e4
+        cycles/deg (results are capped at 1e4); exact implicit-function gradient.
+        """
+        m, c, e, v, shape = self._checked("threshold_frequency", c=c, e=e, v=v)
+        return jnp.broadcast_to(m._threshold_frequency(c, e, v), shape)
+
+    @_public
+    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+        """Viewing-distance multiple beyond which a change is imperceptible [LH01 §5.3].
+
+        ``c``: Michelson contrast of the change; ``theta``: its angular size (deg); ``e``: its
+        eccentricity (deg); ``v``: its retinal velocity (deg/s), all at the current viewpoint. At ``k``
+        times the distance the change has frequency ``k / (2 theta)`` cycles/deg, eccentricity ``e / k``
+        and velocity ``v / k``. Returns the smallest ``k >= 0`` such that the change is imperceptible
+        at every ``k' > k``; at ``k`` itself it is perceptible (within 1e-4 relative) unless k = 0.
+        ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0.
+
+        Generic hook (:meth:`_imperceptible_distance`). A model whose ``inputs`` include neither
+        ``"e"`` nor ``"v"`` is perceptible at ``k`` iff ``k / (2 theta) <= threshold_frequency(c)``, so
+        ``k = 2 theta threshold_frequency(c)`` exactly. Otherwise the LARGEST perceptible ``k`` is found
+        by scanning a log grid of ``f = k / (2 theta)`` over [1e-4, 1e4] cycles/deg (``_N_GRID`` = 257
+        points, one step = 7.5 % in k) from the bottom, keeping the last perceptible grid point and
+        refining the crossing above it by safeguarded Newton (so perceptibility that is not monotone
+        in ``k``, through an eccentricity or velocity term, is handled). Guarantee: the answer is exact
+        (to the root finder's precision) unless the set of perceptible ``k`` has a component lying
+        entirely above the last perceptible grid point and strictly between two grid points, i.e. a
+        perceptible window narrower than one grid step (7.5 % in k) above every other perceptible k;
+        such a window is missed. Results are capped at ``2e4 theta``; perceptibility only below
+        ``2e-4 theta`` reports 0. Implicit-function gradient. Models override the hook with closed
+        forms.
+        """
+        m, c, theta, e, v, shape = self._checked("imperceptible_distance", c=c, theta=theta, e=e, v=v)
+        return jnp.broadcast_to(m._imperceptible_distance(c, theta, e, v), shape)
+
+    # ----------------------------------------------------------------- hooks: the model
+    @_hook_with_legacy
+    def _log_sensitivity(self, f, e, v):
+        """ln S at checked inputs. Default (a model implementing ``_sensitivity``, or one written for
+        the former contract): the guarded log of its sensitivity."""
+        cls = type(self)
+        if cls.log_sensitivity is not CSFModel.log_sensitivity:
+            return cls.log_sensitivity(self, f, e, v)
+        if cls.sensitivity is not CSFModel.sensitivity:
+            return log_guard(cls.sensitivity(self, f, e, v))
+        return log_guard(self._sensitivity(f, e, v))
+
+    def _sensitivity(self, f, e, v):
+        """S at checked inputs; default ``exp(_log_sensitivity)``."""
+        cls = type(self)
+        if cls.sensitivity is not CSFModel.sensitivity:  # the former contract
+            return cls.sensitivity(self, f, e, v)
+        return jnp.exp(self._log_sensitivity(f, e, v))
+
+    def _stimulus_log_sensitivity(self, f, e, v, luminance=None, area=None):
+        """ln S of a stimulus of ``luminance`` and ``area``; default: ignores them."""
+        return self._log_sensitivity(f, e, v)
+
+    def _stimulus_sensitivity(self, f, e, v, luminance=None, area=None):
+        """S of a stimulus of ``luminance`` and ``area``; default: ignores them."""
+        return self._sensitivity(f, e, v)
+
+    # ----------------------------------------------------------------- hooks: generic solvers
     def _peak_frequency(self, e, v):
+        """Generic peak search (see :meth:`peak_frequency`)."""
         shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
         dtype = jnp.result_type(e, v, float)
         if shape and "e" not in self.inputs and "v" not in self.inputs:
             # the peak does not depend on e, v: search once (a scalar) and broadcast
             return jnp.broadcast_to(self._peak_frequency(jnp.zeros((), dtype), jnp.zeros((), dtype)), shape)
         e_, v_, ms = lax.stop_gradient((e, v, self))
-        logs = lambda u: ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
+        logs = lambda u: ms._log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
         n = 49
         u_lo, u_hi = np.log(1e-3), np.log(1e3)
         du = (u_hi - u_lo) / (n - 1)
@@ -204,7 +423,7 @@ class CSFModel(eqx.Module):
 
         # implicit derivative of d logS / du = 0 with respect to e, v and the model constants
         def dlog(u):
-            return jax.jvp(lambda uu: self.log_sensitivity(jnp.exp(uu), e, v), (u,), (jnp.ones_like(u),))[1]
+            return jax.jvp(lambda uu: self._log_sensitivity(jnp.exp(uu), e, v), (u,), (jnp.ones_like(u),))[1]
 
         interior = (u_star > u_lo + du) & (u_star < u_hi - du)
         u = implicit_root(dlog, u_star, mask=interior)
@@ -212,43 +431,27 @@ class CSFModel(eqx.Module):
 
     def _peak_frequency_sg(self, e, v):
         """The peak frequency under ``stop_gradient`` (used where its derivative is not needed, e.g. the
-        distance margin). Subclasses whose ``_peak_frequency`` pays for an implicit-gradient pass in the
+        distance margin). Models whose ``_peak_frequency`` pays for an implicit-gradient pass in the
         forward computation override it with the bare search."""
         return lax.stop_gradient(self._peak_frequency(e, v))
 
-    def is_perceptible(self, c, f, e=0.0, v=0.0):
-        """True where contrast ``c`` at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
-        velocity ``v`` (deg/s) is visible: ``c >= c_T(max(f, f_peak(e, v)), e, v)`` (below the peak
-        frequency the peak's threshold is used, the worst case of seed 004 sections 3.1 and 6.1).
-        Bool array of the broadcast shape. NaN inputs under jit give False."""
-        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
-        self = self._like(c, f, e, v)
-        fe = jnp.maximum(f, self._peak_frequency_sg(e, v))  # a bool: no gradient needed
-        return _log_guard(c) + self.log_sensitivity(fe, e, v) >= 0
-
-    def threshold_frequency(self, c, e=0.0, v=0.0):
-        """Highest frequency (cycles/deg) at which Michelson contrast ``c`` is still visible at
-        eccentricity ``e`` and velocity ``v``; 0 where ``c`` is invisible at every frequency.
-
-        Inverse of the falling limb: ``threshold_contrast(threshold_frequency(c)) == c`` where the
-        result is positive. Generic: safeguarded Newton in log f between the peak frequency and 1e4
-        cycles/deg (results are capped at 1e4); exact implicit-function gradient.
-        """
-        c, e, v = check_inputs("threshold_frequency", c=c, e=e, v=v)
-        self = self._like(c, e, v)
-        return self._threshold_frequency(c, e, v)
+    def _is_perceptible(self, c, f, e, v):
+        """Generic: ``ln c + ln S(max(f, f_peak)) >= 0`` (the peak needs no gradient: a bool)."""
+        fe = jnp.maximum(f, self._peak_frequency_sg(e, v))
+        return log_guard(c) + self._log_sensitivity(fe, e, v) >= 0
 
     def _threshold_frequency(self, c, e, v):
+        """Generic inverse of the falling limb (see :meth:`threshold_frequency`)."""
         shape = jnp.broadcast_shapes(c.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, e, v, float)
         fp = lax.stop_gradient(jnp.broadcast_to(self._peak_frequency(e, v), shape).astype(dtype))
-        logc = _log_guard(c)
+        logc = log_guard(c)
 
         def g(u):
-            return logc + self.log_sensitivity(jnp.exp(u), e, v)
+            return logc + self._log_sensitivity(jnp.exp(u), e, v)
 
         logc_, e_, v_, ms = lax.stop_gradient((logc, e, v, self))
-        g_sg = lambda u: logc_ + ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
+        g_sg = lambda u: logc_ + ms._log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
         u_lo = jnp.log(fp)
         u_hi = jnp.full(shape, np.log(_F_HI), dtype)
         visible = g_sg(u_lo) >= 0
@@ -258,9 +461,9 @@ class CSFModel(eqx.Module):
         u = implicit_root(g, jnp.where(ok, u_star, u_lo), mask=ok)
         return jnp.where(visible, jnp.where(saturated, jnp.asarray(_F_HI, dtype), jnp.exp(u)), 0.0)
 
-    # ----------------------------------------------------------------- distance key
+    # ----------------------------------------------------------------- hooks: distance key
     def _distance_margin(self, k, c, theta, e, v, peak=None):
-        """log c - log c_T at distance multiple ``k`` (perceptible iff >= 0).
+        """The perceptibility margin: ``ln c - ln c_T`` at distance multiple ``k`` (perceptible iff >= 0).
 
         The peak frequency (``peak(e, v)``, default :meth:`_peak_frequency_sg`) enters under
         ``stop_gradient``: where it binds (f below the peak) the margin is log S at its maximum over f,
@@ -269,7 +472,7 @@ class CSFModel(eqx.Module):
         f = k / (2.0 * theta)
         ek, vk = e / k, v / k
         fe = jnp.maximum(f, (self._peak_frequency_sg if peak is None else peak)(ek, vk))
-        return _log_guard(c) + self.log_sensitivity(fe, ek, vk)
+        return log_guard(c) + self._log_sensitivity(fe, ek, vk)
 
     def _generic_scan(self, c, theta, e, v, peak=None):
         """The scan of :meth:`imperceptible_distance` (no gradient; ``theta > 0``): ``(ln k*, found,
@@ -282,31 +485,8 @@ class CSFModel(eqx.Module):
         w_hi = jnp.broadcast_to(jnp.log(2.0 * theta * _F_HI), shape).astype(dtype)
         return largest_crossing(g, w_lo, w_hi, n_grid=_N_GRID, n_iter=40)
 
-    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
-        """Viewing-distance multiple beyond which a change is imperceptible (seed 004 section 5.3).
-
-        ``c``: Michelson contrast of the change; ``theta``: its angular size (deg); ``e``: its
-        eccentricity (deg); ``v``: its retinal velocity (deg/s), all at the current viewpoint. At ``k``
-        times the distance the change has frequency ``k / (2 theta)`` cycles/deg, eccentricity ``e / k``
-        and velocity ``v / k``. Returns the smallest ``k >= 0`` such that the change is imperceptible
-        at every ``k' > k``; at ``k`` itself it is perceptible (within 1e-4 relative) unless k = 0.
-        ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0.
-
-        Generic method. A model whose ``inputs`` include neither ``"e"`` nor ``"v"`` is perceptible at
-        ``k`` iff ``k / (2 theta) <= threshold_frequency(c)``, so ``k = 2 theta threshold_frequency(c)``
-        exactly. Otherwise the LARGEST perceptible ``k`` is found by scanning a log grid of
-        ``f = k / (2 theta)`` over [1e-4, 1e4] cycles/deg (``_N_GRID`` = 257 points, one step = 7.5 % in
-        k) from the bottom, keeping the last perceptible grid point and refining the crossing above
-        it by safeguarded Newton (so perceptibility that is not monotone in ``k``, through an
-        eccentricity or velocity term, is handled). Guarantee: the answer is exact (to the root
-        finder's precision) unless the set of perceptible ``k`` has a component lying entirely above
-        the last perceptible grid point and strictly between two grid points, i.e. a perceptible
-        window narrower than one grid step (7.5 % in k) above every other perceptible k; such a
-        window is missed. Results are capped at ``2e4 theta``; perceptibility only below
-        ``2e-4 theta`` reports 0. Implicit-function gradient. Subclasses override it with closed forms.
-        """
-        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
-        self = self._like(c, theta, e, v)
+    def _imperceptible_distance(self, c, theta, e, v):
+        """Generic distance solve (see :meth:`imperceptible_distance`)."""
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, theta, e, v, float)
         pos = theta > 0

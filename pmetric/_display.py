@@ -1,8 +1,7 @@
 """Display model: screen geometry (pixels -> visual angle) and photometry (RGB -> cd/m2).
 
-Geometry follows Reddy 2001 (seed 000, Eq 5): the highest frequency a display can show is
-``xi = 1 / (2 * degrees_per_pixel)`` cycles/deg. Photometry follows Luebke & Hallen 2001 (seed 004
-section 6.1): RGB values are turned into luminance (cd/m2) either by a transfer function (sRGB, IEC
+Geometry follows [Red01 Eq 5]: the highest frequency a display can show is
+``xi = 1 / (2 * degrees_per_pixel)`` cycles/deg. Photometry follows [LH01 §6.1]: RGB values are turned into luminance (cd/m2) either by a transfer function (sRGB, IEC
 61966-2-1, or a pure power-law gamma) between a black level and a peak luminance, or by a measured
 per-channel lookup table, interpolated linearly, whose channel contributions above black add up.
 Contrast is Michelson contrast ``(Lmax - Lmin) / (Lmax + Lmin)``.
@@ -27,6 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._errors import PlodError
+
 __all__ = ["Display", "michelson", "michelson_range", "relative_luminance", "srgb_to_linear",
            "linear_to_srgb"]
 
@@ -49,17 +50,17 @@ def _check_finite_nonneg(name: str, x, *, positive: bool = False, upper: float |
     if a is None:
         return
     if not np.issubdtype(a.dtype, np.number) and a.dtype != bool:
-        raise ValueError(f"{name} must be numeric, got dtype {a.dtype}")
+        raise PlodError(f"{name} must be numeric, got dtype {a.dtype}")
     if np.isnan(a).any():
-        raise ValueError(f"{name} contains NaN")
+        raise PlodError(f"{name} contains NaN")
     if np.isinf(a).any():
-        raise ValueError(f"{name} contains an infinite value")
+        raise PlodError(f"{name} contains an infinite value")
     if positive and (a <= 0).any():
-        raise ValueError(f"{name} must be > 0, got {a[a <= 0].ravel()[0]!r}")
+        raise PlodError(f"{name} must be > 0, got {a[a <= 0].ravel()[0]!r}")
     if (a < 0).any():
-        raise ValueError(f"{name} must be >= 0, got {a[a < 0].ravel()[0]!r}")
+        raise PlodError(f"{name} must be >= 0, got {a[a < 0].ravel()[0]!r}")
     if upper is not None and (a > upper).any():
-        raise ValueError(f"{name} must be <= {upper}, got {a[a > upper].ravel()[0]!r}")
+        raise PlodError(f"{name} must be <= {upper}, got {a[a > upper].ravel()[0]!r}")
 
 
 def _float(x):
@@ -108,11 +109,11 @@ def _linear_to_gamma(u, gamma):
 def relative_luminance(rgb_linear):
     """Relative luminance Y of linear RGB (Rec. 709 / sRGB primaries): 0.2126 R + 0.7152 G + 0.0722 B.
 
-    ``rgb_linear``: (..., 3) -> (...). Raises ValueError when the last axis is not 3.
+    ``rgb_linear``: (..., 3) -> (...). Raises PlodError when the last axis is not 3.
     """
     rgb = _float(rgb_linear)
     if rgb.ndim == 0 or rgb.shape[-1] != 3:
-        raise ValueError(f"relative_luminance: expected an (..., 3) RGB array, got shape {rgb.shape}")
+        raise PlodError(f"relative_luminance: expected an (..., 3) RGB array, got shape {rgb.shape}")
     w = jnp.asarray(_REC709, dtype=rgb.dtype)
     return jnp.sum(rgb * w, axis=-1)
 
@@ -121,7 +122,7 @@ def michelson(l1, l2):
     """Michelson contrast ``|l1 - l2| / (l1 + l2)`` of two luminances (cd/m2, >= 0), broadcast.
 
     Returns 0 where both are 0 (and a finite, zero gradient there: double-where). Concrete negative or
-    NaN luminances raise ValueError; under jit they are not checked (negative sums give 0).
+    NaN luminances raise PlodError; under jit they are not checked (negative sums give 0).
     """
     _check_finite_nonneg("michelson: luminance l1", l1)
     _check_finite_nonneg("michelson: luminance l2", l2)
@@ -143,7 +144,7 @@ def michelson_range(lum, axis=-1):
     _check_finite_nonneg("michelson_range: luminance", lum)
     lum = _float(lum)
     if lum.ndim == 0:
-        raise ValueError("michelson_range: needs at least a 1-D array of luminances")
+        raise PlodError("michelson_range: needs at least a 1-D array of luminances")
     return michelson(jnp.max(lum, axis=axis), jnp.min(lum, axis=axis))
 
 
@@ -201,44 +202,44 @@ class Display(eqx.Module):
         lut_luminance=None,
     ):
         if transfer not in _TRANSFERS:
-            raise ValueError(f"Display: transfer must be one of {_TRANSFERS}, got {transfer!r}")
+            raise PlodError(f"Display: transfer must be one of {_TRANSFERS}, got {transfer!r}")
         try:
             rx, ry = (int(r) for r in resolution)
         except (TypeError, ValueError):
-            raise ValueError(f"Display: resolution must be two integers (px_x, px_y), got {resolution!r}") from None
+            raise PlodError(f"Display: resolution must be two integers (px_x, px_y), got {resolution!r}") from None
         if rx <= 0 or ry <= 0 or (rx, ry) != tuple(resolution):
-            raise ValueError(f"Display: resolution must be two positive integers, got {resolution!r}")
+            raise PlodError(f"Display: resolution must be two positive integers, got {resolution!r}")
         for name, val in (("width (m)", width), ("height (m)", height), ("distance (m)", distance),
                           ("peak_luminance (cd/m2)", peak_luminance), ("gamma", gamma)):
             if jnp.ndim(val) != 0:
-                raise ValueError(f"Display: {name} must be a scalar, got shape {jnp.shape(val)}")
+                raise PlodError(f"Display: {name} must be a scalar, got shape {jnp.shape(val)}")
             _check_finite_nonneg(f"Display: {name}", val, positive=True)
         if jnp.ndim(black_level) != 0:
-            raise ValueError(f"Display: black_level must be a scalar, got shape {jnp.shape(black_level)}")
+            raise PlodError(f"Display: black_level must be a scalar, got shape {jnp.shape(black_level)}")
         _check_finite_nonneg("Display: black_level (cd/m2)", black_level)
         pk, bl = _concrete(peak_luminance), _concrete(black_level)
         if pk is not None and bl is not None and not bl < pk:
-            raise ValueError(f"Display: black_level {float(bl)} must be below peak_luminance {float(pk)} cd/m2")
+            raise PlodError(f"Display: black_level {float(bl)} must be below peak_luminance {float(pk)} cd/m2")
         if transfer == "lut":
             if lut_levels is None or lut_luminance is None:
-                raise ValueError("Display: transfer='lut' needs lut_levels (K,) and lut_luminance (K, 3)")
+                raise PlodError("Display: transfer='lut' needs lut_levels (K,) and lut_luminance (K, 3)")
             lv, ll = _float(lut_levels), _float(lut_luminance)
             if lv.ndim != 1 or lv.shape[0] < 2 or ll.shape != (lv.shape[0], 3):
-                raise ValueError(f"Display: lut_levels must be (K,) with K >= 2 and lut_luminance (K, 3); "
+                raise PlodError(f"Display: lut_levels must be (K,) with K >= 2 and lut_luminance (K, 3); "
                                  f"got {lv.shape} and {ll.shape}")
             _check_finite_nonneg("Display: lut_levels", lut_levels, upper=1.0)
             _check_finite_nonneg("Display: lut_luminance (cd/m2)", lut_luminance)
             a = _concrete(lut_levels)
             if a is not None and not (np.diff(a) > 0).all():
-                raise ValueError("Display: lut_levels must be strictly increasing")
+                raise PlodError("Display: lut_levels must be strictly increasing")
             if a is not None and (a[0] != 0.0 or a[-1] != 1.0):
-                raise ValueError(f"Display: lut_levels must span [0, 1] (got {a[0]} .. {a[-1]})")
+                raise PlodError(f"Display: lut_levels must span [0, 1] (got {a[0]} .. {a[-1]})")
             b = _concrete(lut_luminance)
             if b is not None and not (np.diff(b, axis=0) >= 0).all():
-                raise ValueError("Display: lut_luminance must not decrease with the level in any channel")
+                raise PlodError("Display: lut_luminance must not decrease with the level in any channel")
         else:
             if lut_levels is not None or lut_luminance is not None:
-                raise ValueError(f"Display: lut_levels / lut_luminance only apply to transfer='lut', not {transfer!r}")
+                raise PlodError(f"Display: lut_levels / lut_luminance only apply to transfer='lut', not {transfer!r}")
             lv, ll = jnp.zeros((0,)), jnp.zeros((0, 3))
         self.width, self.height, self.distance = _float(width), _float(height), _float(distance)
         self.peak_luminance, self.black_level, self.gamma = _float(peak_luminance), _float(black_level), _float(gamma)
@@ -251,17 +252,17 @@ class Display(eqx.Module):
     def from_diagonal(cls, diagonal_in, aspect=(16, 9), resolution=(1920, 1080), distance=0.6, **kw) -> "Display":
         """Screen of ``diagonal_in`` inches with aspect ratio ``aspect`` (w, h) viewed from ``distance`` m."""
         if not (np.isscalar(diagonal_in) and diagonal_in > 0):
-            raise ValueError(f"Display.from_diagonal: diagonal (inches) must be a positive number, got {diagonal_in!r}")
+            raise PlodError(f"Display.from_diagonal: diagonal (inches) must be a positive number, got {diagonal_in!r}")
         aw, ah = (float(a) for a in aspect)
         if not (aw > 0 and ah > 0):
-            raise ValueError(f"Display.from_diagonal: aspect must be two positive numbers, got {aspect!r}")
+            raise PlodError(f"Display.from_diagonal: aspect must be two positive numbers, got {aspect!r}")
         diag_m = float(diagonal_in) * 0.0254
         hyp = math.hypot(aw, ah)
         return cls(diag_m * aw / hyp, diag_m * ah / hyp, resolution, distance, **kw)
 
     @classmethod
     def from_lut(cls, width, height, resolution, distance, levels, luminance_rgb) -> "Display":
-        """Display calibrated with a photometer (seed 004 section 6.1).
+        """Display calibrated with a photometer [LH01 §6.1].
 
         ``levels`` (K,): drive levels in [0, 1], increasing, from 0 to 1. ``luminance_rgb`` (K, 3): the
         measured luminance (cd/m2) with one channel at that level and the others at 0. The black level
@@ -270,7 +271,7 @@ class Display(eqx.Module):
         """
         lum = np.asarray(luminance_rgb, dtype=float)
         if lum.ndim != 2 or lum.shape[1] != 3:
-            raise ValueError(f"Display.from_lut: luminance_rgb must be (K, 3), got {lum.shape}")
+            raise PlodError(f"Display.from_lut: luminance_rgb must be (K, 3), got {lum.shape}")
         black = float(lum[0].mean())
         peak = black + float((lum[-1] - black).sum())
         return cls(width, height, resolution, distance, peak_luminance=peak, black_level=black,
@@ -278,7 +279,7 @@ class Display(eqx.Module):
 
     @classmethod
     def default(cls) -> "Display":
-        """24-inch 16:9 1920x1080 sRGB monitor spanning 46 deg horizontally (seed 004's study),
+        """24-inch 16:9 1920x1080 sRGB monitor spanning 46 deg horizontally (the study of [LH01 §6.2]),
         peak 200 cd/m2, black 0.5 cd/m2; viewing distance = (W/2) / tan(23 deg) = 0.6258 m."""
         diag_m = 24 * 0.0254
         w = diag_m * 16 / math.hypot(16, 9)
@@ -305,7 +306,7 @@ class Display(eqx.Module):
         """Pixel coordinates (..., 2) -> eye-centred 3-D points (..., 3) in m (z = distance)."""
         xy = _float(xy)
         if xy.ndim == 0 or xy.shape[-1] != 2:
-            raise ValueError(f"Display: pixel coordinates must have shape (..., 2), got {xy.shape}")
+            raise PlodError(f"Display: pixel coordinates must have shape (..., 2), got {xy.shape}")
         px, py = self.pixel_pitch
         x = (xy[..., 0] - self.resolution[0] / 2) * px
         y = (xy[..., 1] - self.resolution[1] / 2) * py
@@ -332,12 +333,12 @@ class Display(eqx.Module):
             return jnp.degrees(2 * jnp.arctan(px / (2 * self.distance)))
         xy = _float(xy)
         if xy.ndim == 0 or xy.shape[-1] != 2:
-            raise ValueError(f"Display.degrees_per_pixel: xy must have shape (..., 2), got {xy.shape}")
+            raise PlodError(f"Display.degrees_per_pixel: xy must have shape (..., 2), got {xy.shape}")
         half = jnp.asarray([0.5, 0.0], dtype=xy.dtype)
         return self.visual_angle(xy - half, xy + half)
 
     def max_frequency(self, xy=None):
-        """Highest frequency the display can show, xi = 1 / (2 degrees_per_pixel) cycles/deg (seed 000 Eq 5)."""
+        """Highest frequency the display can show, xi = 1 / (2 degrees_per_pixel) cycles/deg [Red01 Eq 5]."""
         return 1.0 / (2.0 * self.degrees_per_pixel(xy))
 
     @property
@@ -375,15 +376,15 @@ class Display(eqx.Module):
         _check_finite_nonneg("Display: RGB value", rgb, upper=1.0)
         rgb = _float(rgb)
         if rgb.ndim == 0 or rgb.shape[-1] != 3:
-            raise ValueError(f"Display: RGB values must have shape (..., 3), got {rgb.shape}")
+            raise PlodError(f"Display: RGB values must have shape (..., 3), got {rgb.shape}")
         return rgb
 
     def luminance(self, rgb):
         """Luminance (cd/m2) of encoded RGB values in [0, 1], shape (..., 3) -> (...).
 
         ``"srgb"`` / ``"gamma"``: ``black + (peak - black) * relative_luminance(linearize(rgb))``.
-        ``"lut"``: ``black + sum_c (LUT_c(rgb_c) - black)`` with LUT_c linearly interpolated (seed 004
-        section 6.1). Concrete values outside [0, 1] or NaN raise ValueError; under jit they are clipped.
+        ``"lut"``: ``black + sum_c (LUT_c(rgb_c) - black)`` with LUT_c linearly interpolated
+        [LH01 §6.1]. Concrete values outside [0, 1] or NaN raise PlodError; under jit they are clipped.
         """
         rgb = self._check_rgb(rgb)
         if self.transfer == "lut":

@@ -2,8 +2,7 @@
 
 * :func:`lambertw_m1` -- the lower branch ``W_{-1}(x)`` of the Lambert W function on ``[-1/e, 0)``
   (``jax.scipy.special`` only has the principal branch). Halley iteration from the branch-point
-  series / the asymptotic expansion (Corless et al. 1996, "On the Lambert W function", Adv. Comput.
-  Math. 5:329), three unrolled steps: elementwise and fusable. Exact derivative by ``custom_jvp``.
+  series / the asymptotic expansion [Cor96], three unrolled steps: elementwise and fusable. Exact derivative by ``custom_jvp``.
 * :func:`bracketed_root` -- the root of a function that changes sign from ``>= 0`` to ``< 0`` inside a
   bracket: Newton with bisection safeguard (``rtsafe``, Numerical Recipes section 9.4), a fixed
   number of iterations so it is jit/vmap clean.
@@ -26,19 +25,11 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from ._numerics import as_float, safe_div
+
 __all__ = ["lambertw_m1", "bracketed_root", "largest_crossing", "implicit_root", "implicit_solution", "safe_div"]
 
 _INV_E = 0.36787944117144233
-
-
-def safe_div(num, den, tiny=None):
-    """``num / den`` with ``den`` pushed away from 0 (keeping its sign): finite value and gradient."""
-    den = jnp.asarray(den)
-    if tiny is None:
-        tiny = jnp.finfo(den.dtype if jnp.issubdtype(den.dtype, jnp.floating) else jnp.float32).tiny * 1e4
-    small = jnp.abs(den) < tiny
-    den_ok = jnp.where(small, jnp.where(den < 0, -tiny, tiny), den)
-    return num / den_ok
 
 
 def _lambertw_m1_impl(x):
@@ -46,10 +37,10 @@ def _lambertw_m1_impl(x):
     # x in [-1/e, 0); clip so that the result is finite at the ends (x -> 0- gives W -> -inf).
     tiny = jnp.finfo(dtype).tiny
     xc = jnp.clip(x, -_INV_E, -tiny)
-    # Start 1: branch-point series in p = -sqrt(2 (1 + e x)) (Corless et al. eq 4.22).
+    # Start 1: branch-point series in p = -sqrt(2 (1 + e x)) [Cor96 Eq 4.22].
     p = -jnp.sqrt(jnp.maximum(2.0 * (1.0 + jnp.e * xc), 0.0))
     w_bp = -1.0 + p - p * p / 3.0 + (11.0 / 72.0) * p * p * p - (43.0 / 540.0) * p**4
-    # Start 2: asymptotic series near 0- (Corless et al. eq 4.19) with L1 = ln(-x), L2 = ln(-L1).
+    # Start 2: asymptotic series near 0- [Cor96 Eq 4.19] with L1 = ln(-x), L2 = ln(-L1).
     l1 = jnp.log(-xc)
     l2 = jnp.log(jnp.maximum(-l1, 1e-30))
     w_as = l1 - l2 + l2 / l1 + l2 * (l2 - 2.0) / (2.0 * l1 * l1)
@@ -76,10 +67,7 @@ def lambertw_m1(x):
     Derivative ``W / (x (1 + W))`` (infinite at the branch point; there it is clamped to a large finite
     number). Relative error about 1 ulp in float64 and float32.
     """
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return _lambertw_m1_impl(x)
+    return _lambertw_m1_impl(as_float(x))
 
 
 @lambertw_m1.defjvp

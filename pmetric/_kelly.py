@@ -1,378 +1,331 @@
-"""Direct solve of the imperceptible distance for Kelly's (1979) spatio-temporal CSF.
+"""Kelly's CSFs, with exact inversions.
 
-Used by :meth:`pmetric.KellySpatioTemporal.imperceptible_distance`. Notation: a change of contrast
-``c`` spanning ``theta`` deg and moving at ``v`` deg/s on the retina, seen from ``k`` times farther
-away, has frequency ``f = k / (2 theta)`` cycles/deg and velocity ``u = v / k`` deg/s; its temporal
-frequency ``f u = v / (2 theta)`` Hz does not depend on ``k``. With ``K(u) = a0 + a1 |log10(u/3)|^3``,
-``A = b v / (2 theta)`` (dimensionless) and ``s = k / v = 1 / u`` (s/deg), the margin
-``ln c - ln c_T`` (perceptible iff >= 0; the threshold below the peak frequency is the peak's) is,
-for ``k <= 10 v`` (``u >= 0.1``, below which Kelly's fit is clamped):
+* :class:`KellyAbstract` -- the abstract CSF ``alpha^2 e^-alpha`` of [Kel75] scaled by delta with the
+  temporal-retina cortical magnification [LHNW00 Eq 1-2, 5].
+* :class:`KellySpatioTemporal` -- the stabilized spatio-temporal CSF of [Kel79] ([LHNW00 Eq 4]) and
+  Reddy's refit [Red01 Eq 2]; its distance solve lives in ``_kelly_distance.py``.
 
-* on the falling limb (``f >= f_peak(u)``, i.e. ``s >= s_p``, ``s_p = (2 - A) / (2 A)`` for A < 2, else
-  every s): ``h(s) = ln K + ln s - 2 A s + C_H``, ``C_H = ln c + 2 ln(A / b) - A``;
-* below the peak (``s < s_p``): ``p(t) = ln K + t - 2 ln(e^t + 2) + C_P`` with ``t = ln u``,
-  ``C_P = ln c - 2 ln b + 2 ln 2 - 2``: a fixed function of t, whose few local maxima are found once
-  per model (``kelly_structure``).
-
-**Concavity.** ``d2h/ds2 = (l1 + l2 - 1) / s^2`` with ``l1, l2`` the first two derivatives of
-``ln K`` in ``t = ln u``. They depend only on ``r = a1 / a0``: for Kelly's and Reddy's constants
-(r = 1.197) ``max(l1 + l2) = 0.921 < 1``, so ``h`` is strictly concave in s for every input.
-(``kelly_structure`` checks it for the model's constants; where it fails the caller uses its scan.)
-Newton's method started to the right of the largest root of a concave function never overshoots:
-every iterate is an upper bound of the root (a conservative distance), and the iterates decrease
-monotonically onto it. An iterate that reaches the lower end of the falling limb, or a point where
-``h`` increases, proves there is no root; so does the tangent bound ``h(s) <= h(s_n) + h'(s_n)(s -
-s_n)`` over ``[s_lo, s_n]``.
-
-Sources: Kelly, D. H. (1979) "Motion and vision II", JOSA 69(10):1340 (seed 001 Eq 4); Reddy (2001)
-(seed 000 Eq 2) for the refitted constants; Luebke & Hallen (2001) (seed 004 section 5.3) for the
-distance key.
+Units: f cycles/deg, e deg, v deg/s, c Michelson contrast (0..1), theta deg.
 """
 
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from ._inverse import bracketed_root, lambertw_m1
+from ._base import CSFModel, distance_margin_k, param
+from ._errors import PlodError
+from ._inverse import implicit_solution, lambertw_m1, largest_crossing
+from ._kelly_distance import kelly_clamped_root, kelly_fast, kelly_slow, kelly_structure
+from ._numerics import is_tracer, log_guard, rare_update
 
-__all__ = ["kelly_structure", "kelly_fast", "kelly_slow", "kelly_clamped_root", "rare_update"]
-
-_LN10 = math.log(10.0)
-_LN3 = math.log(3.0)
-_LN2 = math.log(2.0)
-T_MIN = math.log(0.1)  # ln of the lowest velocity of the fit (deg/s); u = v / k >= 0.1 <=> k <= 10 v
-NMAX = 4  # local maxima of p(t) kept (Kelly's constants have 2)
-_CONCAVE_LIMIT = 0.98  # l1 + l2 must stay below this (1 is the limit; the grid max is within 1e-4)
+__all__ = ["KellyAbstract", "KellySpatioTemporal"]
 
 
-def lnk(t, a0, a1):
-    """``ln K`` and its first two derivatives in ``t = ln u`` (``K = a0 + a1 |log10(u / 3)|^3``)."""
-    x = (t - _LN3) * (1.0 / _LN10)
-    ax = jnp.abs(x)
-    kk = a0 + a1 * ax * ax * ax
-    ik = 1.0 / kk
-    kx = 3.0 * a1 * x * ax * ik
-    l1 = kx * (1.0 / _LN10)
-    l2 = (6.0 * a1 * ax * ik - kx * kx) * (1.0 / _LN10**2)
-    return jnp.log(kk), l1, l2
+_E2_4 = math.e**2 / 4.0  # 1 / max(alpha^2 e^-alpha), attained at alpha = 2
 
 
-def kelly_structure(a0, a1, dtype):
-    """Per-model constants of the direct solve (scalars; cost independent of the batch).
+class KellyAbstract(CSFModel):
+    """Kelly's abstract CSF [Kel75] with delta scaling and cortical magnification [LHNW00 Eq 1-5].
 
-    Returns ``(ok, tmax, prev, pmax, pglob)``: ``ok`` is True when ``h`` is concave for every input
-    (``max(l1 + l2) < 0.98`` on a fine grid) and ``p`` has at most ``NMAX`` local maxima;
-    ``tmax`` (NMAX,) the local maxima of ``p`` on ``[T_MIN, ln 1e7]`` (``+inf`` pads), ``prev`` the
-    local minimum before each (``-inf`` if none), ``pmax`` the values of ``p - C_P`` there, ``pglob``
-    the largest value of ``p - C_P`` on ``[T_MIN, inf)``.
+    ``1/c_T = delta alpha^2 exp(-alpha)``, ``alpha = 2 (1 + 0.29 e) f / f0``. With ``f0 = 2`` this is
+    ``alpha = (1 + 0.29 e) f`` of [LHNW00 Eq 2] exactly; ``f0`` (cycles/deg) is the foveal peak frequency,
+    a fittable frequency scale ([LHNW00] measured f in units of its own display; its ``delta = 0.4``
+    makes every contrast below 1 invisible when f is in cycles/deg). Defaults: ``f0 = 4`` cycles/deg
+    (a realistic foveal peak) and ``delta = 200 e^2 / 4 = 369.45`` so that the peak sensitivity is 200.
+    The peak sensitivity is ``4 delta / e^2`` at every eccentricity; the peak frequency is
+    ``f0 / (1 + 0.29 e)``. No velocity term (``v`` accepted and ignored).
+
+    Inversions are closed forms through the lower Lambert W branch:
+    ``alpha* = -2 W_{-1}(-1 / (2 sqrt(delta c)))`` on the falling limb (alpha >= 2).
+
+    Domain: f in [0, 1e30] cycles/deg, e in [0, 1e4] deg, c in [0, 1]; values and gradients finite.
     """
-    a0, a1 = (lax.stop_gradient(jnp.asarray(x, dtype)) for x in (a0, a1))
-    r = jnp.maximum(a1 / a0, 0.0)
-    s = r ** (1.0 / 3.0) / _LN10
-    y = jnp.linspace(0.0, 6.0, 4097, dtype=dtype)  # x = y r^(-1/3); l1 + l2 peaks near y = 0.76
-    q = 1.0 + y * y * y
-    worst = jnp.max(3.0 * s * y * y / q + s * s * (6.0 * y - 3.0 * y**4) / (q * q))
-    t = jnp.linspace(T_MIN, math.log(1e7), 4097, dtype=dtype)
 
-    def dp(t):
-        _, l1, _ = lnk(t, a0, a1)
-        return l1 + 1.0 - 2.0 / (1.0 + 2.0 * jnp.exp(-t))
+    delta: jax.Array
+    f0: jax.Array
 
-    up = dp(t) > 0
-    chg_max = up[:-1] & ~up[1:]
-    chg_min = ~up[:-1] & up[1:]
-    (imax,) = jnp.nonzero(chg_max, size=NMAX, fill_value=-1)
-    (imin,) = jnp.nonzero(chg_min, size=NMAX, fill_value=-1)
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e")
+    param_bounds: ClassVar[dict] = {"delta": (1e-6, None), "f0": (1e-3, None)}
 
-    def refine(i):  # bisection on the sign change of p' inside grid cell i
-        lo, hi = t[jnp.maximum(i, 0)], t[jnp.maximum(i, 0) + 1]
-        s_lo = dp(lo) > 0
+    def __init__(self, delta=200.0 * _E2_4, f0=4.0):
+        self.delta = param(delta, "KellyAbstract.delta")
+        self.f0 = param(f0, "KellyAbstract.f0")
 
-        def body(_, st):
-            lo, hi = st
-            mid = 0.5 * (lo + hi)
-            same = (dp(mid) > 0) == s_lo
-            return jnp.where(same, mid, lo), jnp.where(same, hi, mid)
+    def _alpha(self, f, e):
+        return 2.0 * (1.0 + 0.29 * e) * jnp.minimum(f, 1e30) / self.f0
 
-        lo, hi = lax.fori_loop(0, 48, body, (lo, hi))
-        return jnp.where(i >= 0, 0.5 * (lo + hi), jnp.inf)
+    def _log_sensitivity(self, f, e, v):
+        a = self._alpha(f, e)
+        out = jnp.log(self.delta) + 2.0 * log_guard(a) - a
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
 
-    tmax, tmin = refine(imax), refine(imin)
-    prev = jnp.max(jnp.where(tmin[None, :] < tmax[:, None], tmin[None, :], -jnp.inf), axis=1)
+    def _sensitivity(self, f, e, v):
+        """S = delta alpha^2 exp(-alpha), alpha = 2 (1 + 0.29 e) f / f0 (no log: exact to rounding)."""
+        a = self._alpha(f, e)
+        out = self.delta * a * a * jnp.exp(-a)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
 
-    def p0(t):
-        lk, _, _ = lnk(t, a0, a1)
-        return lk - t - 2.0 * jnp.log1p(2.0 * jnp.exp(-t))
+    def _peak_frequency(self, e, v):
+        out = self.f0 / (1.0 + 0.29 * e)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
 
-    fin = jnp.isfinite(tmax)
-    pmax = jnp.where(fin, p0(jnp.where(fin, tmax, 0.0)), -jnp.inf)
-    pglob = jnp.maximum(jnp.max(pmax), p0(jnp.asarray(T_MIN, dtype)))
-    ok = (worst < _CONCAVE_LIMIT) & (jnp.sum(chg_max) <= NMAX) & ~up[-1]
-    return ok, tmax, prev, pmax, pglob
+    def _alpha_star(self, c):
+        """Falling-limb alpha where delta c alpha^2 e^-alpha = 1; visible mask (delta c >= e^2/4)."""
+        dc = self.delta * c
+        visible = dc >= _E2_4
+        dcs = jnp.where(visible, dc, 1.0)
+        x = jnp.where(visible, -0.5 * lax.rsqrt(dcs), -0.25)
+        return -2.0 * lambertw_m1(x), visible
 
+    def _is_perceptible(self, c, f, e, v):
+        """c >= c_T(max(f, f_peak)); fused closed form (see :meth:`CSFModel.is_perceptible`)."""
+        a = jnp.maximum(self._alpha(f, e), 2.0)
+        out = log_guard(c) + jnp.log(self.delta) + 2.0 * jnp.log(a) - a >= 0
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
 
-def _consts(a0, a1, b, c, th, v):
-    vs = jnp.where(v > 0, v, 1.0)
-    A = b * vs / (2.0 * th)
-    lnc = jnp.log(jnp.maximum(c, 1e-30))
-    lnA = jnp.log(A)
-    lnb = jnp.log(b)
-    ch = lnc + 2.0 * (lnA - lnb) - A
-    cp = lnc - 2.0 * lnb + (2.0 * _LN2 - 2.0)
-    below = A < 2.0
-    s_p = jnp.where(below, (2.0 - A) / (2.0 * A), 0.0)  # falling limb for s >= s_p
-    return vs, A, lnA, ch, cp, below, s_p
+    def _threshold_frequency(self, c, e, v):
+        a, visible = self._alpha_star(c)
+        f = a * self.f0 / (2.0 * (1.0 + 0.29 * e))
+        out = jnp.where(visible, f, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
 
-
-def _h(s, A, ch, a0, a1):
-    """h(s), h'(s) and h''(s) on the falling limb (s = k / v)."""
-    t = -jnp.log(s)
-    lk, l1, l2 = lnk(t, a0, a1)
-    i_s = 1.0 / s
-    return lk - t - 2.0 * A * s + ch, (1.0 - l1) * i_s - 2.0 * A, (l1 + l2 - 1.0) * i_s * i_s
+    def _imperceptible_distance(self, c, theta, e, v):
+        """Closed form: at distance multiple k, alpha(k) = (k + 0.29 e) / (theta f0) grows with k, so
+        ``k = max(0, theta f0 alpha* - 0.29 e)`` (0 where c is invisible even at the peak)."""
+        a, visible = self._alpha_star(c)
+        k = jnp.maximum(theta * self.f0 * a - 0.29 * e, 0.0)
+        out = jnp.where(visible, k, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, v.shape))
 
 
-def _p(t, cp, a0, a1):
-    """p(t), p'(t) below the peak (t = ln u = -ln s)."""
-    lk, l1, _ = lnk(t, a0, a1)
-    q = 2.0 * jnp.exp(-t)
-    return lk - t - 2.0 * jnp.log1p(q) + cp, l1 + 1.0 - 2.0 / (1.0 + q)
+# --------------------------------------------------------------------------- Kelly spatio-temporal
+_KELLY_CONSTANTS = {
+    # a0, a1 in [a0 + a1 |log10(v/3)|^3] v f^2 exp(-b f (v + 2))
+    "kelly1979": (6.1, 7.3, 2.0 / 45.9),  # [Kel79], [LHNW00 Eq 4]
+    "reddy": (250.1, 299.3, 5.5 * math.log(10.0) / 45.9),  # [Red01 Eq 2]: 10^(-5.5 f (v+2)/45.9)
+}
 
 
-def _p_bracket(t_lo, cp, struct, below, a0, a1):
-    """Where ``p`` first reaches 0 on ``[t_lo, inf)``: an increasing bracket ``[a, b]`` (in t), and
-    whether it exists. ``p``'s supremum there is ``max(p(t_lo), local maxima beyond t_lo)``."""
-    _, tmax, prev, pmax, _ = struct
-    p_lo, _ = _p(t_lo, cp, a0, a1)
-    a = jnp.full_like(t_lo, jnp.inf)
-    b = jnp.full_like(t_lo, jnp.inf)
-    for j in reversed(range(NMAX)):
-        cond = (tmax[j] > t_lo) & (pmax[j] + cp >= 0)
-        a = jnp.where(cond, jnp.maximum(prev[j], t_lo), a)
-        b = jnp.where(cond, tmax[j], b)
-    at_lo = p_lo >= 0
-    a = jnp.where(at_lo, t_lo, a)
-    b = jnp.where(at_lo, t_lo, b)
-    return a, b, below & (at_lo | jnp.isfinite(b))
+def _kelly_c0():
+    """max over t > 0 of 6 t / (1 + t^3) - 9 t^4 / (1 + t^3)^2 (curvature bound of ln(a0 + a1 |x|^3))."""
+    t = np.linspace(1e-4, 5.0, 200001)
+    return float((6 * t / (1 + t**3) - 9 * t**4 / (1 + t**3) ** 2).max()) * (1 + 1e-6)
 
 
-def _max_l1(a0, a1):
-    """``max |l1| = r^(1/3) 2^(2/3) / ln 10`` (``r = a1 / a0``; at ``|y|^3 = 2``, y = r^(1/3) x)."""
-    return jnp.maximum(a1 / a0, 0.0) ** (1.0 / 3.0) * (2.0 ** (2.0 / 3.0) / _LN10)
+_KELLY_C0 = _kelly_c0()  # 2.2300
 
 
-def _s_lo(a0, a1, A, s_p):
-    """Lower end of the falling-limb search: the largest root of h is >= its maximum s*, and
-    ``s* = (1 - l1(s*)) / (2 A) >= (1 - max l1) / (2 A)``."""
-    m1 = _max_l1(a0, a1)
-    return jnp.minimum(jnp.maximum(s_p, (1.0 - m1) / (2.0 * A)), 10.0)
+class KellySpatioTemporal(CSFModel):
+    """Kelly's stabilized spatio-temporal CSF [Kel79]: sensitivity to a grating drifting at ``v`` deg/s.
 
+    ``S(f, v) = [a0 + a1 |log10(v/3)|^3] v f^2 exp(-b f (v + 2))``. ``constants="kelly1979"``:
+    a0 = 6.1, a1 = 7.3, b = 2/45.9 ([LHNW00 Eq 4]); ``"reddy"``: a0 = 250.1, a1 = 299.3,
+    b = 5.5 ln(10)/45.9 ([Red01 Eq 2], ``10^(-5.5 f (v+2)/45.9)``). The fit is valid for v > 0.1 deg/s:
+    velocities below 0.1 deg/s (including 0, a stabilized/tracked target) are treated as 0.1 deg/s.
+    Peak frequency ``2 / (b (v + 2))`` (9.18 cycles/deg at v = 3 for Kelly's constants). No eccentricity
+    term (``e`` ignored; wrap in :class:`Eccentric`).
 
-# start of the clamped-velocity root: a(D) = 2 + 2 sqrt(D) + D q(sqrt(D)) solves 2 ln a - a + C = 0
-# (a >= 2, D = C + 2 ln 2 - 2); q: least-squares fit (numpy.polyfit, weights ~ x^2 / a, 400 Chebyshev
-# nodes in sqrt(D) on [0, sqrt(12)]) of the exact root -2 W_{-1}(-e^(-C/2) / 2); relative error <= 1e-5
-# for 0 <= D <= 12 (tested), so one Newton step converges. Leading terms 2/3, 1/18 as in the
-# branch-point series of W_{-1} (Corless et al. 1996, eq 4.22).
-_R1_Q = (0.00043165, -0.00676053, 0.05455865, 0.66710294)
-_R1_D_MAX = 12.0
+    ``threshold_frequency`` is a closed form (Lambert W, as for :class:`KellyAbstract` with
+    ``delta = K(v) v / (b (v+2))^2``). ``imperceptible_distance`` is a direct solve (closed form where
+    the answer lies beyond ``k = 10 v``, monotone Newton on a margin that is concave in ``k / v``
+    below it, certified brackets for the rare rest; see ``_imperceptible_distance`` and
+    ``_kelly_distance.py``).
 
-
-def _r1(a0, a1, b, lnc):
-    """The clamped-velocity regime ``k >= 10 v`` (u = 0.1 deg/s) in ``y = b k / theta``:
-    ``G1(y) = 2 ln y - g1 y + C1`` with ``g1 = (0.1 + 2) / 2``; concave, maximal at ``y* = 2 / g1``
-    (the peak frequency) where it equals ``D = C1 + 2 ln(2 / g1) - 2``. Returns ``(g1, C1, D)``."""
-    x1 = (T_MIN - _LN3) / _LN10
-    k1 = a0 + a1 * abs(x1) ** 3
-    g1 = 0.5 * (math.exp(T_MIN) + 2.0)
-    c1 = lnc + jnp.log(0.1 * k1) - 2.0 * jnp.log(2.0 * b)
-    return g1, c1, c1 + (2.0 * math.log(2.0 / g1) - 2.0)
-
-
-def kelly_clamped_root(a0, a1, b, c, th):
-    """``k0``: the largest perceptible k in the clamped regime (Lambert W, exact; 0 if none). Where
-    ``k0 >= 10 v`` it is the answer; :func:`kelly_fast` finds it by Newton, this is its reference."""
-    lnc = jnp.log(jnp.maximum(c, 1e-30))
-    g1, c1, d = _r1(a0, a1, b, lnc)
-    ok = d >= 0
-    x = jnp.where(ok, -0.5 * jnp.exp(-0.5 * jnp.where(ok, c1 - 2.0 * math.log(g1), 0.0)), -0.25)
-    return jnp.where(ok, -2.0 * lambertw_m1(x) / g1 * th / b, 0.0)
-
-
-def kelly_fast(a0, a1, b, c, th, v, struct, n_newton: int = 4):
-    """Elementwise direct solve for every element (under stop_gradient; ``th > 0``, ``v >= 0``).
-
-    Two independent parts in one elementwise pass, selected at the end:
-
-    * where the change is perceptible at ``k = 10 v`` (or ``v = 0``) the answer is the root of the
-      clamped-velocity margin ``G1(y) = 2 ln y - g1 y + C1`` (``y = b k / theta``; Lambert W in closed
-      form): a fitted series in ``sqrt(D)`` starts within 1e-5 of it, and in float64 one Newton step
-      (from either side of the concave ``G1`` it lands on an upper bound) makes it exact. In float32
-      the step is skipped: near the branch point (``D -> 0``) its rounding would cost more than the
-      series' 1e-5 (the root is ill-conditioned there in any method);
-    * elsewhere: ``n_newton`` monotone Newton steps on ``h`` from an upper bound of the root (at most
-      ``s = 10``), with the certificates of the module docstring.
-
-    Returns one array: the largest perceptible ``k`` where found, 0 where nothing is perceptible, NaN
-    where this pass cannot settle it (Newton not yet converged to 1e-5 relative without a no-root
-    certificate, a possible root below the peak frequency, or ``D > 12``, i.e. ``c >> 1``): the caller
-    solves those with :func:`kelly_slow` and :func:`kelly_clamped_root`.
+    Domain: f in [0, 1e30], v in [0, 1e4]; values and gradients finite.
     """
-    tiny = jnp.finfo(c.dtype).tiny
-    vs, A, lnA, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
-    s_lo = _s_lo(a0, a1, A, s_p)
-    def newton(sv):
-        g, dg, _ = _h(sv, A, ch, a0, a1)
-        dg = jnp.minimum(dg, -tiny)
-        step = jnp.where(g < 0, g / dg, 0.0)
-        return jnp.maximum(sv - step, s_lo), g, dg, step
 
-    # start: the root of a linear majorant of h (ln K <= its larger end value on [s_lo, 10], which
-    # lies in t = ln(1/s) <= ln(2 A / (1 - max l1)); ln s <= its tangent at 2 / A), an upper bound
-    # of the largest root: Newton from there stays monotone
-    m1 = _max_l1(a0, a1)
-    t_far = jnp.maximum(lnA + jnp.log(2.0 / (1.0 - m1)), T_MIN)
-    l_top = jnp.maximum(lnk(jnp.asarray(T_MIN, c.dtype), a0, a1)[0], lnk(t_far, a0, a1)[0])
-    lin = l_top + (_LN2 - lnA) - 1.0 + ch
-    s0 = jnp.clip(lin / (1.5 * A), s_lo, 10.0)
-    s_prev, step0 = s0, jnp.full_like(c, 10.0)
-    # an unrolled chain: XLA keeps the whole pass in one fused loop (a fori_loop would write and read
-    # every iterate and its per-element constants once per step)
-    for _ in range(n_newton - 1):
-        s_prev, _, _, step0 = newton(s_prev)
-    sv, g, dg, step = newton(s_prev)  # g, dg at s_prev: the certificates use the tangent there
-    # no root on the falling limb: h < 0 on (s_prev, 10] (passed by monotone Newton) and, h being
-    # concave, below its tangent at s_prev on [s_lo, s_prev]: negative if h rises there or the
-    # tangent is negative at s_lo
-    none_h = (s_p >= 10.0) | ((g < 0) & ((dg >= 0) | (g - dg * (s_prev - s_lo) < 0)))
-    # remaining error: ~step^2 / previous step while Newton converges quadratically (<= step always)
-    conv = (g >= 0) | (jnp.minimum(step, step * step / jnp.maximum(step0, tiny)) <= 1e-5 * sv)
-    found_h = ~none_h & conv
-    undecided = ~none_h & ~conv
-    # below the peak (only if the falling limb has no root): p < 0 at t_lo (there p = h(s_p) < 0, or
-    # t_lo = T_MIN where the change is not perceptible), so a root needs a later local maximum >= 0
-    _, tmax, _, pmax, _ = struct
-    s_top = jnp.minimum(jnp.where(below, s_p, 10.0), 10.0)  # t_lo = -ln(s_top)
-    has_p = jnp.zeros_like(below)
-    for j in range(NMAX):
-        has_p = has_p | ((jnp.exp(-tmax[j]) < s_top) & (pmax[j] + cp >= 0))
-    rare = undecided | (below & none_h & has_p)
-    k_h = jnp.where(rare, jnp.nan, jnp.where(found_h & (v > 0), vs * sv, 0.0))
+    a0: jax.Array
+    a1: jax.Array
+    b: jax.Array
+    constants: str = eqx.field(static=True, default="kelly1979")
 
-    # the clamped regime. (Its own chain of expressions: sharing more intermediates with the above
-    # makes XLA split the pass into several materialized arrays, which costs more than recomputing.)
-    g1, c1, d = _r1(a0, a1, b, jnp.log(jnp.maximum(c, 1e-30)))
-    y_star = 2.0 / g1
-    y10 = jnp.maximum(10.0 * b * v / th, y_star)
-    r1 = (2.0 * jnp.log(y10) - g1 * y10 + c1 >= 0) & (d >= 0)  # perceptible at k = 10 v
-    xd = jnp.sqrt(jnp.clip(d, 0.0, None))
-    q = _R1_Q[0]
-    for coef in _R1_Q[1:]:
-        q = q * xd + coef
-    y = (2.0 + 2.0 * xd + xd * xd * q) / g1
-    if jnp.finfo(c.dtype).bits > 32:
-        y = jnp.maximum(y - (2.0 * jnp.log(y) - g1 * y + c1) / jnp.minimum(2.0 / y - g1, -tiny), y_star)
-    k_1 = jnp.where(d <= _R1_D_MAX, y * th / b, jnp.nan)
-    # one output array (XLA on CPU would otherwise materialize the shared intermediates once per
-    # output): k where found, 0 where there is no root, NaN where the slow solver must decide
-    return jnp.where(r1, k_1, k_h)
+    inputs: ClassVar[tuple[str, ...]] = ("f", "v")
+    param_bounds: ClassVar[dict] = {"a0": (1e-6, None), "a1": (0.0, None), "b": (1e-6, None)}
 
+    def __init__(self, constants: str = "kelly1979", *, a0=None, a1=None, b=None):
+        if constants not in _KELLY_CONSTANTS:
+            raise PlodError(f"unknown Kelly constant set {constants!r}; choose one of {sorted(_KELLY_CONSTANTS)}")
+        d0, d1, db = _KELLY_CONSTANTS[constants]
+        self.constants = constants
+        self.a0 = param(d0 if a0 is None else a0, "KellySpatioTemporal.a0")
+        self.a1 = param(d1 if a1 is None else a1, "KellySpatioTemporal.a1", positive=False)
+        self.b = param(db if b is None else b, "KellySpatioTemporal.b")
 
-def kelly_slow(a0, a1, b, c, th, v, struct, n_iter: int = 40):
-    """Elementwise exact solve with certified brackets (slow: for rare elements and for tests).
+    @staticmethod
+    def _v(v):
+        return jnp.clip(v, 0.1, 1e30)
 
-    Falling limb: the maximum of the concave ``h`` on ``[s_lo, 10]`` is located by bisection on
-    ``h'``; if it is >= 0 the largest root is bracketed between it and 10 and found by safeguarded
-    Newton (:func:`pmetric._inverse.bracketed_root`). Otherwise, below the peak: the first increasing stretch of ``p`` that reaches 0 beyond
-    ``t_lo`` (from the per-model maxima) brackets the smallest ``t`` (largest k), found likewise.
-    Returns ``(k, found)``.
-    """
-    vs, A, _, ch, cp, below, s_p = _consts(a0, a1, b, c, th, v)
-    has_h = s_p < 10.0
-    lo = jnp.where(has_h, _s_lo(a0, a1, A, s_p), 1.0)
-    hi = jnp.full_like(c, 10.0)
+    def _log_amp(self, v):
+        """ln(K(v) v) for the clamped velocity."""
+        lv = jnp.abs(jnp.log10(v / 3.0))
+        return jnp.log(self.a0 + self.a1 * lv * lv * lv) + jnp.log(v)
 
-    def gbis(_, st):  # h' decreases (h concave): geometric bisection for h' = 0 on [lo, 10]
-        lo, hi = st
-        mid = jnp.sqrt(lo * hi)
-        _, d, _ = _h(mid, A, ch, a0, a1)
-        return jnp.where(d > 0, mid, lo), jnp.where(d > 0, hi, mid)
+    def _log_sensitivity(self, f, e, v):
+        f = jnp.minimum(f, 1e30)
+        vv = self._v(v)
+        out = self._log_amp(vv) + 2.0 * log_guard(f) - self.b * f * (vv + 2.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(e)))
 
-    s_m, _ = lax.fori_loop(0, n_iter, gbis, (jnp.minimum(lo, hi), hi))
-    hm, _, _ = _h(s_m, A, ch, a0, a1)
-    found_h = has_h & (hm >= 0)
+    def _peak_frequency(self, e, v):
+        out = 2.0 / (self.b * (self._v(v) + 2.0))
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(e)))
 
-    # the root in [s_m, 10], h(s_m) >= 0 > h(10): its perceptible end
-    lo_h = bracketed_root(lambda x: _h(x, A, ch, a0, a1)[0], s_m, hi, n_iter)
-    t_lo = jnp.maximum(-jnp.log(jnp.where(below & (s_p > 0), s_p, 10.0)), T_MIN)
-    a, bb, has_p = _p_bracket(t_lo, cp, struct, below, a0, a1)
-    has_p = has_p & ~found_h
-    a = jnp.where(has_p, a, 0.0)
-    bb = jnp.where(has_p, bb, 0.0)
+    def _is_perceptible(self, c, f, e, v):
+        """Fused closed form of :meth:`CSFModel.is_perceptible`."""
+        vv = self._v(v)
+        beta = self.b * (vv + 2.0)
+        a = jnp.maximum(beta * jnp.minimum(f, 1e30), 2.0)  # alpha = beta f, clamped at the peak
+        out = log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta) + 2.0 * jnp.log(a) - a >= 0
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, e.shape))
 
-    # p increases on [a, b], p(a) < 0 <= p(b): the smallest t with p >= 0, as a root in x = -t
-    hi_p = -bracketed_root(lambda x: _p(-x, cp, a0, a1)[0], -bb, -a, n_iter)
-    k = vs * jnp.where(found_h, lo_h, jnp.exp(-hi_p))
-    return k, found_h | has_p
+    def _threshold_frequency(self, c, e, v):
+        vv = self._v(v)
+        beta = self.b * (vv + 2.0)
+        log_dc = log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta)  # ln(delta_eff c)
+        visible = log_dc >= math.log(_E2_4)
+        x = jnp.where(visible, -0.5 * jnp.exp(-0.5 * jnp.where(visible, log_dc, 0.0)), -0.25)
+        out = jnp.where(visible, -2.0 * lambertw_m1(x) / beta, 0.0)
+        return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, e.shape))
 
+    def _distance_margin(self, k, c, theta, e, v, peak=None):
+        """Fused ``log c - log c_T(max(f, f_peak))`` at distance multiple k (f = k / 2 theta, v / k;
+        no e term, and the peak is the closed form: ``peak`` is ignored)."""
+        vv = self._v(v / k)
+        beta = self.b * (vv + 2.0)
+        a = jnp.maximum(beta * k / (2.0 * theta), 2.0)
+        return log_guard(c) + self._log_amp(vv) - 2.0 * jnp.log(beta) + 2.0 * jnp.log(a) - a
 
-def rare_update(fn, base, mask, args, block: int = 16, max_blocks: int | None = None,
-                cap: int | None = None):
-    """``base`` with ``fn(*args)`` written where ``mask`` (``fn`` elementwise, returning one array).
+    def _imperceptible_distance(self, c, theta, e, v):
+        """See :meth:`CSFModel.imperceptible_distance`; theta deg, v deg/s. Direct solve
+        (``_kelly_distance.py``):
 
-    For a rare mask: flat compaction of a large array is slow with XLA on CPU, so it is two-level.
-    The blocks of ``block`` elements holding a masked element are gathered (at most ``max_blocks``,
-    static), then the masked elements among them (at most ``cap``); ``fn`` runs on those and the
-    results are scattered into ``base``. With more masked elements than ``cap`` ``fn`` runs on the
-    gathered blocks, with more blocks than ``max_blocks`` on everything, with none not at all
-    (``lax.switch`` / ``lax.cond``). Defaults: ``max_blocks`` ``n / 256`` (at least 64), ``cap``
-    ``n / 256`` (at least 64), about three times the rate (1 in 770) at which :func:`kelly_fast`
-    leaves elements unsettled on random inputs."""
-    shape = mask.shape
-    m = mask.reshape(-1)
-    n = m.size
-    b0 = jnp.broadcast_to(base, shape).reshape(-1)
-    nblk = -(-n // block)
-    pad = nblk * block - n
-    flat = [jnp.broadcast_to(a, shape).reshape(-1) for a in args]
-    if pad:
-        flat = [jnp.pad(a, (0, pad)) for a in flat]
-        m = jnp.pad(m, (0, pad))
-    mb = m.reshape(nblk, block)
-    hit = mb.any(axis=1)
-    nb = min(max(64, -(-n // 256)) if max_blocks is None else max_blocks, nblk)
-    cap = min(nb * block, max(64, -(-n // 256)) if cap is None else cap)
-    drop = n + pad  # out-of-range index: the write is dropped
+        1. For ``k >= 10 v`` the retinal velocity v/k is clamped at 0.1 deg/s and perceptibility falls
+           with k; where the change is perceptible at ``k = 10 v`` (or ``v = 0``) the answer is the root
+           of ``2 ln y - 1.05 y + C`` (``y = b k / theta``; the Lambert W closed form
+           ``k0 = 2 theta f*(c, 0.1)``), found by Newton from a fitted start within 1e-5 of it.
+        2. Elsewhere every perceptible k is below ``10 v``. In ``s = k / v`` the margin on the falling
+           limb is ``h(s) = ln c + ln K(1/s) + ln s - 2 A s + 2 ln(A / b) - A`` (``A = b v / 2 theta``),
+           strictly concave in s for these constants (checked per model by :func:`kelly_structure`):
+           Newton from an upper bound descends monotonically onto its largest root (every iterate is an
+           upper bound, so k errs on the conservative side, converged to 1e-5 relative) or certifies
+           that there is none. Below the peak frequency the margin is a fixed function of ``ln(v / k)``
+           whose local maxima are found once per model; a root there is bracketed from them.
+           Steps 1 and 2 are one elementwise pass of four Newton steps (:func:`kelly_fast`).
+        3. The few elements that pass cannot settle (a root close to a tangency, or a root below the
+           peak frequency; about 1 in 1000 random inputs) are gathered and solved with certified
+           brackets (:func:`kelly_slow`, :func:`kelly_clamped_root`).
+        Constants for which concavity cannot be certified (``a1 / a0`` above about 1.37; Kelly's and
+        Reddy's are 1.197) fall back to a scan: monotone Newton where the margin is concave in ln k,
+        a 129-point grid plus safeguarded Newton elsewhere (it can miss a perceptible window narrower
+        than one grid step).
+        Gradients: implicit-function theorem on the fused margin.
+        """
+        shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
+        dtype = jnp.result_type(c, theta, e, v, float)
+        c, theta, v = (jnp.broadcast_to(x, shape).astype(dtype) for x in (c, theta, v))
+        pos = theta > 0
+        th = jnp.where(pos, theta, 1.0)
+        sg = lax.stop_gradient
+        ms, c_, t_, v_ = sg((self, c, theta, v))
+        if is_tracer(self.a0) or is_tracer(self.a1):
+            struct = kelly_structure(ms.a0, ms.a1, dtype)
+        else:  # concrete constants (the usual case): decide the solver at trace time
+            with jax.ensure_compile_time_eval():
+                struct = kelly_structure(self.a0, self.a1, dtype)
 
-    def none(b):
-        return b
+        def direct(_):
+            # one elementwise pass from the raw inputs (nothing else reads its intermediates, so XLA
+            # keeps it one fused loop): k, 0 = none, NaN = undecided
+            w = kelly_fast(ms.a0, ms.a1, ms.b, c_, jnp.where(t_ > 0, t_, 1.0), v_, struct)
+            w = jnp.where(t_ > 0, w, 0.0)
 
-    def full(b):
-        return jnp.where(m[:n], fn(*(a[:n] for a in flat)), b)
+            def slow(c1, t1, v1):  # certified brackets and the Lambert W closed form
+                k0 = kelly_clamped_root(ms.a0, ms.a1, ms.b, c1, t1)
+                k, found = kelly_slow(ms.a0, ms.a1, ms.b, c1, t1, v1, struct)
+                return jnp.where(k0 >= 10.0 * v1, k0, jnp.where(found & (v1 > 0), k, 0.0))
 
-    def blocks(b):
-        (bi,) = jnp.nonzero(hit, size=nb, fill_value=nblk)
-        bi_c = jnp.minimum(bi, nblk - 1)
-        sub = [a.reshape(nblk, block)[bi_c].reshape(-1) for a in flat]
-        msub = (mb[bi_c] & (bi < nblk)[:, None]).reshape(-1)
-        idx = (bi_c[:, None] * block + jnp.arange(block)[None, :]).reshape(-1)
+            def rare(c1, t1, v1):  # the gathered few: more Newton steps first (one pass, no loop)
+                t1 = jnp.where(t1 > 0, t1, 1.0)
+                w1 = kelly_fast(ms.a0, ms.a1, ms.b, c1, t1, v1, struct, n_newton=12)
+                nb = max(16, c1.size // 16)
+                return rare_update(slow, w1, jnp.isnan(w1), (c1, t1, v1), block=1, max_blocks=nb, cap=nb)
 
-        def gathered(b):
-            return b.at[jnp.where(msub, idx, drop)].set(fn(*sub), mode="drop")
+            return rare_update(rare, w, jnp.isnan(w), (c_, t_, v_))
 
-        def elements(b):
-            (ei,) = jnp.nonzero(msub, size=cap, fill_value=msub.size)
-            ei_c = jnp.minimum(ei, msub.size - 1)
-            w = fn(*(a[ei_c] for a in sub))
-            return b.at[jnp.where(ei < msub.size, idx[ei_c], drop)].set(w, mode="drop")
+        def scan(_):
+            z0 = jnp.zeros((), dtype)  # v = 0 (clamped to 0.1): scalar terms, folded once
+            th_ = jnp.where(t_ > 0, t_, 1.0)
+            k0 = 2.0 * th_ * ms._threshold_frequency(c_, z0, z0)
+            easy = k0 >= 10.0 * v_
+            w, found = ms._distance_scan(c_, th_, v_, easy)
+            return jnp.where(t_ > 0, jnp.where(easy, k0, jnp.where(found, jnp.exp(w), 0.0)), 0.0)
 
-        if cap >= msub.size:
-            return gathered(b)
-        return lax.cond(msub.sum() <= cap, elements, gathered, b)
+        if is_tracer(struct[0]):
+            k_star = lax.cond(struct[0], direct, scan, None)
+        else:  # XLA on CPU runs the branches of a cond on one thread: avoid it when possible
+            k_star = direct(None) if bool(struct[0]) else scan(None)
+        ok = k_star > 0
+        k = implicit_solution(distance_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, e, v)
+        return jnp.where(ok, k, 0.0)
 
-    nhit = hit.sum()
-    branch = jnp.where(nhit == 0, 0, jnp.where(nhit <= nb, 1, 2))
-    return lax.switch(branch, [none, blocks, full], b0).reshape(shape)
+    def _distance_scan(self, c_, th_, v_, easy):
+        """The general solver (any a0, a1): monotone Newton where the margin is concave in ln k, a
+        scan elsewhere. Used when :func:`kelly_structure` cannot certify the direct solve.
+        Returns ``(ln k, found)`` under stop_gradient."""
+        ms = self
+        dtype = c_.dtype
+        eps = jnp.finfo(dtype).eps
+        vpos = v_ > 0
+        vs = jnp.where(vpos, v_, 1.0)
+        b = ms.b
+        r = jnp.maximum(ms.a1 / ms.a0, 0.0)
+        kappa = 1.01 * r ** (2.0 / 3.0) * _KELLY_C0 / math.log(10.0) ** 2
+        k_c = jnp.maximum(2.0 * th_ / b - 0.5 * v_, kappa * th_ / b)
+        w_c = jnp.log(jnp.maximum(k_c, 2e-4 * th_))
+        w_top = jnp.log(10.0 * vs)
+        const = log_guard(c_) + jnp.log(vs) - 2.0 * jnp.log(2.0 * th_) - b * v_ / (2.0 * th_)
+        l10 = math.log(10.0)
+        x0 = jnp.log10(vs / 3.0)
+
+        def h_dh(w):
+            x = x0 - w / l10
+            ax = jnp.abs(x)
+            kk = ms.a0 + ms.a1 * ax * ax * ax
+            bk = b * jnp.exp(w) / th_
+            return const + jnp.log(kk) + w - bk, -3.0 * ms.a1 * x * ax / (l10 * kk) + 1.0 - bk
+
+        def newton(_, w):
+            h, dh = h_dh(w)
+            return w - jnp.where((h < 0) & (dh < 0), h / jnp.minimum(dh, -eps), 0.0)
+
+        regA = vpos & ~easy & (w_c < w_top)
+        wA = lax.fori_loop(0, 12, newton, jnp.where(regA, w_top, 0.0))
+        hA, _ = h_dh(wA)
+        foundA = regA & (hA >= -64.0 * eps) & (wA >= w_c - 1e-6)
+        needB = vpos & ~easy & ~foundA
+        g_sg = lambda w: ms._distance_margin(jnp.exp(w), c_, th_, 0.0, v_)  # noqa: E731
+        w_lo = jnp.log(2e-4 * th_)
+        w_hiB = jnp.maximum(jnp.minimum(w_c, w_top), w_lo + 1e-3)
+
+        def search_b(c1, th1, v1, lo1, hi1):
+            g1 = lambda w: ms._distance_margin(jnp.exp(w), c1, th1, 0.0, v1)  # noqa: E731
+            w, found, _sat = largest_crossing(g1, lo1, hi1, n_grid=129, n_iter=40)
+            return w, found
+
+        def search_nan(*a):  # not found: NaN
+            w, found = search_b(*a)
+            return jnp.where(found, w, jnp.nan)
+
+        # up to a quarter of the batch gathered element by element (the whole batch when more)
+        wB = rare_update(search_nan, jnp.full_like(c_, jnp.nan), needB, (c_, th_, v_, w_lo, w_hiB),
+                         block=1, max_blocks=max(1, c_.size // 4), cap=max(1, c_.size // 4))
+        foundB = needB & ~jnp.isnan(wB)
+        w_star = jnp.where(foundA, wA, jnp.where(foundB, wB, 0.0))
+        return w_star, (foundA | foundB)

@@ -15,11 +15,13 @@ Each field is one of
 * ``{"kind": "static", "value": ...}`` -- a static field (switch) or a ``None``; tuples are written as
   ``{"tuple": [...]}`` so they come back as tuples (static fields must stay hashable).
 
-Classes are looked up by name in a registry of pmetric's models: every subclass of ``CSFModel``
-defined in pmetric, every ``equinox.Module`` exported by ``pmetric`` (``RovamoVirsu``, ``Display``) and
-classes added with :func:`register_model`. Loading restores the fields directly (no ``__init__``) and then
-runs the classes' ``__check_init__`` validators. float64 arrays load as float32 when ``jax_enable_x64`` is
-off. Files are written atomically.
+Classes are looked up by name in pmetric's one model table (:func:`pmetric.model_registry`, see
+``pmetric/_registry.py``). Loading restores the fields directly (no ``__init__``), checks every floating
+constant (finite, representable in its dtype, inside the class's ``param_bounds``) and then runs the
+classes' ``__check_init__`` validators; ``save_model`` refuses non-finite constants, so a file it writes
+holds no ``NaN``. float64 arrays load as float32 when ``jax_enable_x64`` is off. Files are written
+atomically. Every problem raises :class:`pmetric.PlodError` naming the file and the field, e.g.
+``m.json: KellyAbstract.delta must be >= 1e-06, got nan``.
 """
 
 from __future__ import annotations
@@ -36,41 +38,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._atomic import atomic_write_text
+from ._errors import PlodError
+from ._registry import _EXTRA, model_registry, register_model  # noqa: F401  (one table: pmetric._registry)
 
 __all__ = ["save_model", "load_model", "model_to_dict", "model_from_dict", "register_model", "model_registry"]
 
 FORMAT = "pmetric-model"
 VERSION = 1
-
-_EXTRA: dict[str, type] = {}
-
-
-def register_model(cls: type) -> type:
-    """Make a (non-pmetric) ``equinox.Module`` class loadable by name; usable as a decorator."""
-    if not (isinstance(cls, type) and issubclass(cls, eqx.Module)):
-        raise ValueError(f"register_model: {cls!r} is not an equinox.Module class")
-    _EXTRA[cls.__name__] = cls
-    return cls
-
-
-def model_registry() -> dict[str, type]:
-    """Name -> class of every model class ``load_model`` can rebuild (built at call time)."""
-    import pmetric  # late import: the package imports this module
-    from ._base import CSFModel
-
-    reg: dict[str, type] = {}
-    stack = [CSFModel]
-    while stack:
-        k = stack.pop()
-        for sub in k.__subclasses__():
-            stack.append(sub)
-            if sub.__module__.split(".")[0] == "pmetric" and not getattr(sub, "__abstractmethods__", None):
-                reg[sub.__name__] = sub
-    for name, obj in vars(pmetric).items():
-        if isinstance(obj, type) and issubclass(obj, eqx.Module) and not getattr(obj, "__abstractmethods__", None):
-            reg.setdefault(obj.__name__, obj)
-    reg.update(_EXTRA)
-    return reg
 
 
 # ---------------------------------------------------------------------------- encoding
@@ -83,28 +57,39 @@ def _encode_static(v: Any, where: str):
         return v
     if isinstance(v, (np.integer, np.floating, np.bool_)):
         return v.item()
-    raise ValueError(f"save_model: {where} holds a {type(v).__name__}, which cannot be stored as JSON")
+    raise PlodError(f"save_model: {where} holds a {type(v).__name__}, which cannot be stored as JSON")
 
 
 def _decode_static(v: Any):
     if isinstance(v, dict):
         if set(v) != {"tuple"} or not isinstance(v["tuple"], list):
-            raise ValueError(f"malformed static value {v!r}")
+            raise PlodError(f"malformed static value {v!r}")
         return tuple(_decode_static(x) for x in v["tuple"])
     if isinstance(v, list):
         return [_decode_static(x) for x in v]
     return v
 
 
+def _encode_array(val, where: str) -> dict:
+    if isinstance(val, jax.core.Tracer):
+        raise PlodError(f"save_model: {where} is a traced value; save outside jit")
+    a = np.asarray(val)
+    if a.dtype.kind not in "fiub":
+        raise PlodError(f"save_model: {where} has unsupported dtype {a.dtype}")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise PlodError(f"save_model: {where} must be finite, got {_first_bad(a, np.isfinite(a))}; "
+                        "refusing to write a model that would load as broken")
+    return {"kind": "array", "dtype": str(a.dtype), "shape": list(a.shape), "data": a.tolist()}
+
+
 def model_to_dict(model: eqx.Module) -> dict:
     """The JSON-ready description of ``model`` (see the module docstring)."""
     if not isinstance(model, eqx.Module):
-        raise ValueError(f"save_model: expected a pmetric model (equinox.Module), got {type(model).__name__}")
+        raise PlodError(f"save_model: expected a pmetric model (equinox.Module), got {type(model).__name__}")
     name = type(model).__name__
-    reg = model_registry()
-    if reg.get(name) is not type(model):
-        raise ValueError(f"save_model: class {name!r} is not a registered pmetric model; "
-                         "register it with pmetric.register_model")
+    if model_registry().get(name) is not type(model):
+        raise PlodError(f"save_model: class {name!r} is not a registered pmetric model; "
+                        "register it with pmetric.register_model")
     fields = {}
     for fld in dataclasses.fields(model):
         val = getattr(model, fld.name)
@@ -114,100 +99,151 @@ def model_to_dict(model: eqx.Module) -> dict:
         elif isinstance(val, eqx.Module):
             fields[fld.name] = {"kind": "module", **model_to_dict(val)}
         elif isinstance(val, (jax.Array, np.ndarray, np.generic)):
-            if isinstance(val, jax.core.Tracer):
-                raise ValueError(f"save_model: {where} is a traced value; save outside jit")
-            a = np.asarray(val)
-            if a.dtype.kind not in "fiub":
-                raise ValueError(f"save_model: {where} has unsupported dtype {a.dtype}")
-            fields[fld.name] = {"kind": "array", "dtype": str(a.dtype), "shape": list(a.shape), "data": a.tolist()}
+            fields[fld.name] = _encode_array(val, where)
         else:
             fields[fld.name] = {"kind": "static", "value": _encode_static(val, where)}
     return {"class": name, "fields": fields}
 
 
-def model_from_dict(d: Any, *, _where: str = "model") -> eqx.Module:
-    """Rebuild a model from :func:`model_to_dict` output; ValueError naming the problem."""
+# ---------------------------------------------------------------------------- decoding
+def _first_bad(a: np.ndarray, ok: np.ndarray):
+    """The first value of ``a`` where ``ok`` is False, as a Python number."""
+    return np.asarray(a).ravel()[np.flatnonzero(~np.asarray(ok).ravel())[0]].item()
+
+
+def _check_constant(raw: np.ndarray, dtype: np.dtype, cls: type, name: str, src: str) -> None:
+    """Finite, representable as ``dtype`` and inside ``cls.param_bounds[name]``; PlodError otherwise."""
+    where = f"{src}: {cls.__name__}.{name}"
+    lo, hi = (getattr(cls, "param_bounds", None) or {}).get(name, (None, None))
+    ok = np.isfinite(raw)
+    if lo is not None:
+        ok &= raw >= lo
+    if hi is not None:
+        ok &= raw <= hi
+    if not ok.all():
+        rule = ("must be finite" if lo is None and hi is None else
+                f"must be >= {lo:g}" if hi is None else
+                f"must be <= {hi:g}" if lo is None else f"must be in [{lo:g}, {hi:g}]")
+        raise PlodError(f"{where} {rule}, got {_first_bad(raw, ok)}")
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))  # float64 loads as float32 without x64
+    with np.errstate(over="ignore"):
+        cast = raw.astype(dtype)
+    if not np.isfinite(cast).all():
+        raise PlodError(f"{where} must fit in {dtype}, got {_first_bad(raw, np.isfinite(cast))}")
+
+
+def _decode_array(enc: dict, where: str) -> np.ndarray:
+    try:
+        dtype = np.dtype(enc["dtype"])
+        a = np.asarray(enc["data"], dtype=np.float64 if dtype.kind == "f" else dtype)
+        shape = tuple(enc["shape"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PlodError(f"field {where}: malformed array ({exc})") from None
+    if dtype.kind not in "fiub":
+        raise PlodError(f"field {where}: unsupported dtype {dtype}")
+    if a.size == 0 and 0 in shape:
+        a = a.reshape(shape)  # nested lists cannot carry the shape of an empty array
+    if a.shape != shape:
+        raise PlodError(f"field {where}: data has shape {a.shape}, header says {shape}")
+    return a
+
+
+def _decode_field(enc: Any, fld, cls: type, where: str, src: str):
+    if not isinstance(enc, dict) or enc.get("kind") not in ("array", "module", "static"):
+        raise PlodError(f"field {where} must be an object with kind 'array', 'module' or 'static'")
+    kind = enc["kind"]
+    if fld.metadata.get("static", False) and kind != "static":
+        raise PlodError(f"field {where} is static in {cls.__name__} but stored as {kind!r}")
+    if kind == "static":
+        try:
+            return _decode_static(enc.get("value"))
+        except PlodError as exc:
+            raise PlodError(f"field {where}: {exc}") from None
+    if kind == "module":
+        return _from_dict(enc, where, src)
+    a = _decode_array(enc, where)
+    dtype = np.dtype(enc["dtype"])
+    if dtype.kind == "f":
+        _check_constant(a, dtype, cls, fld.name, src)
+        a = a.astype(dtype)
+    return jnp.asarray(a)
+
+
+def _from_dict(d: Any, where: str, src: str) -> eqx.Module:
     if not isinstance(d, dict) or "class" not in d or "fields" not in d or not isinstance(d["fields"], dict):
-        raise ValueError(f"load_model: {_where} must be an object with 'class' and 'fields'")
+        raise PlodError(f"{where} must be an object with 'class' and 'fields'")
     name = d["class"]
     reg = model_registry()
     if name not in reg:
-        raise ValueError(f"load_model: unknown model class {name!r} at {_where}; known: {sorted(reg)}")
+        raise PlodError(f"unknown model class {name!r} at {where}; known: {sorted(reg)}")
     cls = reg[name]
     stored = d["fields"]
     flds = {f.name: f for f in dataclasses.fields(cls)}
     missing = [n for n in flds if n not in stored]
     extra = [n for n in stored if n not in flds]
     if missing:
-        raise ValueError(f"load_model: {name} at {_where} is missing field(s) {missing}")
+        raise PlodError(f"{name} at {where} is missing field(s) {missing}")
     if extra:
-        raise ValueError(f"load_model: {name} at {_where} has unknown field(s) {extra}")
-    values = {}
-    for n, fld in flds.items():
-        enc = stored[n]
-        where = f"{_where}.{n}"
-        if not isinstance(enc, dict) or enc.get("kind") not in ("array", "module", "static"):
-            raise ValueError(f"load_model: field {where} must be an object with kind 'array', 'module' or 'static'")
-        kind = enc["kind"]
-        is_static = fld.metadata.get("static", False)
-        if is_static and kind != "static":
-            raise ValueError(f"load_model: field {where} is static in {name} but stored as {kind!r}")
-        if kind == "static":
-            try:
-                values[n] = _decode_static(enc.get("value"))
-            except ValueError as exc:
-                raise ValueError(f"load_model: field {where}: {exc}") from None
-        elif kind == "module":
-            values[n] = model_from_dict(enc, _where=where)
-        else:
-            try:
-                dtype = np.dtype(enc["dtype"])
-                a = np.asarray(enc["data"], dtype=dtype)
-                shape = tuple(enc["shape"])
-            except (KeyError, TypeError, ValueError) as exc:
-                raise ValueError(f"load_model: field {where}: malformed array ({exc})") from None
-            if dtype.kind not in "fiub":
-                raise ValueError(f"load_model: field {where}: unsupported dtype {dtype}")
-            if a.size == 0 and 0 in shape:
-                a = a.reshape(shape)  # nested lists cannot carry the shape of an empty array
-            if a.shape != shape:
-                raise ValueError(f"load_model: field {where}: data has shape {a.shape}, header says {shape}")
-            values[n] = jnp.asarray(a)
+        raise PlodError(f"{name} at {where} has unknown field(s) {extra}")
     obj = object.__new__(cls)
-    for n, v in values.items():
-        object.__setattr__(obj, n, v)
+    for n, fld in flds.items():
+        object.__setattr__(obj, n, _decode_field(stored[n], fld, cls, f"{where}.{n}", src))
     for k in reversed(cls.__mro__):
         chk = k.__dict__.get("__check_init__")
         if chk is not None:
-            chk(obj)
+            try:
+                chk(obj)
+            except PlodError:
+                raise
+            except ValueError as exc:
+                raise PlodError(f"{src}: {name} at {where}: {exc}") from None
     return obj
 
 
+def model_from_dict(d: Any, *, _where: str = "model", _source: str = "load_model") -> eqx.Module:
+    """Rebuild a model from :func:`model_to_dict` output; PlodError naming the problem."""
+    try:
+        return _from_dict(d, _where, _source)
+    except PlodError as exc:
+        msg = str(exc)
+        raise PlodError(msg if msg.startswith(f"{_source}: ") else f"{_source}: {msg}") from None
+
+
 def save_model(model: eqx.Module, path: str | os.PathLike) -> Path:
-    """Write ``model`` to ``path`` as JSON, atomically; returns the path."""
+    """Write ``model`` to ``path`` as JSON, atomically; returns the path. PlodError (nothing written) for
+    a non-finite constant, an unregistered class or a value JSON cannot hold."""
     doc = {"format": FORMAT, "version": VERSION, "model": model_to_dict(model)}
-    return atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+    try:
+        text = json.dumps(doc, indent=1, allow_nan=False)
+    except ValueError as exc:  # a NaN or infinite static value
+        raise PlodError(f"save_model: {type(model).__name__} holds a value JSON cannot store ({exc})") from None
+    return atomic_write_text(path, text + "\n")
 
 
 def load_model(path: str | os.PathLike) -> eqx.Module:
-    """Read a model written by :func:`save_model`. ValueError for a missing file, malformed JSON, an
-    unknown class, missing or unknown fields."""
+    """Read a model written by :func:`save_model`. PlodError naming the file for a missing file, malformed
+    JSON, an unknown class, missing or unknown fields, or a constant that is not finite or outside the
+    class's ``param_bounds``."""
     p = Path(path)
+    src = str(p)
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ValueError(f"load_model: {str(p)!r} does not exist") from None
+        raise PlodError(f"load_model: {src!r} does not exist") from None
+    except IsADirectoryError:
+        raise PlodError(f"load_model: {src!r} is a directory, not a model file") from None
     except UnicodeDecodeError:
-        raise ValueError(f"load_model: {str(p)!r} is not UTF-8 text") from None
+        raise PlodError(f"load_model: {src!r} is not UTF-8 text") from None
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"load_model: {str(p)!r} is not valid JSON (line {exc.lineno}, column {exc.colno}: "
-                         f"{exc.msg})") from None
+        raise PlodError(f"load_model: {src!r} is not valid JSON (line {exc.lineno}, column {exc.colno}: "
+                        f"{exc.msg})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ValueError(f"load_model: {str(p)!r} is not a pmetric model file (no \"format\": \"{FORMAT}\")")
+        raise PlodError(f"load_model: {src!r} is not a pmetric model file (no \"format\": \"{FORMAT}\")")
     if doc.get("version") != VERSION:
-        raise ValueError(f"load_model: {str(p)!r} has unsupported version {doc.get('version')!r} (expected {VERSION})")
+        raise PlodError(f"load_model: {src!r} has unsupported version {doc.get('version')!r} "
+                        f"(expected {VERSION})")
     if "model" not in doc:
-        raise ValueError(f"load_model: {str(p)!r} has no 'model' entry")
-    return model_from_dict(doc["model"])
+        raise PlodError(f"load_model: {src!r} has no 'model' entry")
+    return model_from_dict(doc["model"], _source=src)

@@ -1,8 +1,6 @@
-"""The achromatic stelaCSF (Mantiuk, Ashraf & Chapiro 2022).
+"""The achromatic stelaCSF [MAC22].
 
-Reference: R. K. Mantiuk, M. Ashraf, A. Chapiro, "stelaCSF: a unified model of contrast sensitivity as
-the function of spatio-temporal frequency, eccentricity, luminance and area", ACM Transactions on
-Graphics 41(4):145, 2022, doi:10.1145/3528223.3530115. Port of the achromatic part of
+Reference: [MAC22], doi:10.1145/3528223.3530115. Port of the achromatic part of
 ``CSF_stelaCSF.m`` (gfxdisp/stelaCSF, parameters "fitted on run stela-csf_all_2022-04-16", the release
 used for ``../shared/data/csf/reference_values_achromatic.csv``; a port matches that table within 1e-3
 in log10 sensitivity).
@@ -41,69 +39,21 @@ import numpy as np
 
 from jax import lax
 
-from ._base import CSFModel, _log_guard, check_inputs
+from . import _stela_peak as _peak
+from . import _stela_ray as _ray
+from ._base import CSFModel, _public, distance_margin_k, float_param
+from ._errors import PlodError
 from ._inverse import implicit_root, implicit_solution
-from ._kelly import rare_update
-from . import _stela_fast as _fast
+from ._numerics import LN_FLOOR, SENSITIVITY_FLOOR, as_float, log_guard, pow_pos, rare_update, safe_log, where_pos
 
 __all__ = ["StelaCSF", "SENSITIVITY_FLOOR"]
 
-#: Smallest sensitivity any model of this module returns (threshold contrast <= 1e30).
-SENSITIVITY_FLOOR = 1e-30
-_LN_FLOOR = math.log(SENSITIVITY_FLOOR)
 _LN10 = math.log(10.0)
-_TINY = 1e-30
-
-
-# --------------------------------------------------------------------------- numeric helpers
-def _where_pos(x, fn, fill):
-    """``fn(x)`` where x > 0 else ``fill`` -- the double-where pattern (finite gradients at x <= 0)."""
-    ok = x > 0
-    safe = jnp.where(ok, x, jnp.ones_like(x))
-    return jnp.where(ok, fn(safe), fill)
-
-
-def _safe_log(x):
-    """log(x) for x > 0; log(1e-30) (gradient 0) for x <= 1e-30 -- used for fitted constants."""
-    ok = x > _TINY
-    return jnp.where(ok, jnp.log(jnp.where(ok, x, 1.0)), _LN_FLOOR)
-
-
-def _safe_pow(x, p):
-    """x**p for x >= 0 (0 at x == 0 with a finite, zero gradient)."""
-    return _where_pos(x, lambda s: jnp.exp(p * jnp.log(s)), jnp.zeros_like(x))
-
-
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def fill_nan(x, default):
-    """Concrete NaN entries of ``x`` (unknown luminance/area in a data set) replaced by ``default``."""
-    if x is None:
-        return default
-    if _is_concrete(x):
-        a = np.asarray(x)
-        if np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
-            return jnp.asarray(np.where(np.isnan(a), default, a), dtype=jnp.asarray(x).dtype)
-    return x
-
-
-def _float(x):
-    """Input as a JAX float array (ints promoted to the default float dtype)."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
-def _param(x):
-    return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
 # --------------------------------------------------------------------------- the model
 class StelaCSF(CSFModel):
-    """Achromatic stelaCSF (Mantiuk, Ashraf & Chapiro 2022, ACM TOG 41(4):145), 2022 parameters.
+    """Achromatic stelaCSF [MAC22], 2022 parameters.
 
     Sensitivity S = 1/c_T (Michelson contrast) of a Gabor / disc stimulus of spatial frequency ``f``
     (cycles/deg) drifting with retinal velocity ``v`` (deg/s; temporal frequency omega = v f, Hz) at
@@ -121,30 +71,30 @@ class StelaCSF(CSFModel):
     transient channel's omega^0.19, whose true derivative is infinite there).
     """
 
-    sust_s_max: jax.Array = eqx.field(converter=_param, default=(68.9501, 59.5023, 0.164274, 7.54866e-07, 7.77268e09))
-    sust_f_max: jax.Array = eqx.field(converter=_param, default=(1.62144, 36.6565, 0.255823))
-    sust_bw: jax.Array = eqx.field(converter=_param, default=0.000219263)
-    sust_a: jax.Array = eqx.field(converter=_param, default=0.103686)
-    trans_s_max: jax.Array = eqx.field(converter=_param, default=(0.500846, 57.3469))
-    trans_f_max: jax.Array = eqx.field(converter=_param, default=0.0267489)
-    trans_bw: jax.Array = eqx.field(converter=_param, default=1.75147)
-    trans_a: jax.Array = eqx.field(converter=_param, default=0.000273289)
-    sigma_trans: jax.Array = eqx.field(converter=_param, default=0.12314)
-    sigma_sust: jax.Array = eqx.field(converter=_param, default=5.79336)
-    beta_sust: jax.Array = eqx.field(converter=_param, default=1.3314)
-    beta_trans: jax.Array = eqx.field(converter=_param, default=0.1898)
-    omega_0: jax.Array = eqx.field(converter=_param, default=5.0)
-    ecc_drop: jax.Array = eqx.field(converter=_param, default=0.0296662)
-    ecc_drop_nasal: jax.Array = eqx.field(converter=_param, default=0.0113638)
-    ecc_drop_f: jax.Array = eqx.field(converter=_param, default=0.0190062)
-    ecc_drop_f_nasal: jax.Array = eqx.field(converter=_param, default=0.0193858)
-    f0: jax.Array = eqx.field(converter=_param, default=0.65)
-    a0: jax.Array = eqx.field(converter=_param, default=270.0)
+    sust_s_max: jax.Array = eqx.field(converter=float_param, default=(68.9501, 59.5023, 0.164274, 7.54866e-07, 7.77268e09))
+    sust_f_max: jax.Array = eqx.field(converter=float_param, default=(1.62144, 36.6565, 0.255823))
+    sust_bw: jax.Array = eqx.field(converter=float_param, default=0.000219263)
+    sust_a: jax.Array = eqx.field(converter=float_param, default=0.103686)
+    trans_s_max: jax.Array = eqx.field(converter=float_param, default=(0.500846, 57.3469))
+    trans_f_max: jax.Array = eqx.field(converter=float_param, default=0.0267489)
+    trans_bw: jax.Array = eqx.field(converter=float_param, default=1.75147)
+    trans_a: jax.Array = eqx.field(converter=float_param, default=0.000273289)
+    sigma_trans: jax.Array = eqx.field(converter=float_param, default=0.12314)
+    sigma_sust: jax.Array = eqx.field(converter=float_param, default=5.79336)
+    beta_sust: jax.Array = eqx.field(converter=float_param, default=1.3314)
+    beta_trans: jax.Array = eqx.field(converter=float_param, default=0.1898)
+    omega_0: jax.Array = eqx.field(converter=float_param, default=5.0)
+    ecc_drop: jax.Array = eqx.field(converter=float_param, default=0.0296662)
+    ecc_drop_nasal: jax.Array = eqx.field(converter=float_param, default=0.0113638)
+    ecc_drop_f: jax.Array = eqx.field(converter=float_param, default=0.0190062)
+    ecc_drop_f_nasal: jax.Array = eqx.field(converter=float_param, default=0.0193858)
+    f0: jax.Array = eqx.field(converter=float_param, default=0.65)
+    a0: jax.Array = eqx.field(converter=float_param, default=270.0)
     luminance: float = eqx.field(static=True, default=100.0)
     area: float = eqx.field(static=True, default=1.0)
     vis_field: float = eqx.field(static=True, default=0.0)
 
-    inputs: ClassVar[tuple[str, ...]] = ("f", "e", "v", "luminance", "area")
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e", "v", "luminance", "area", "vis_field")
     param_bounds: ClassVar[dict[str, tuple[float | None, float | None]]] = {
         "sust_s_max": (1e-12, None),
         "sust_f_max": (1e-12, None),
@@ -171,20 +121,20 @@ class StelaCSF(CSFModel):
         shapes = {"sust_s_max": (5,), "sust_f_max": (3,), "trans_s_max": (2,)}
         for name, shape in shapes.items():
             if jnp.shape(getattr(self, name)) != shape:
-                raise ValueError(f"StelaCSF: {name} must have shape {shape}, got {jnp.shape(getattr(self, name))}")
+                raise PlodError(f"StelaCSF: {name} must have shape {shape}, got {jnp.shape(getattr(self, name))}")
         for name in self.param_bounds:
             if name not in shapes and jnp.shape(getattr(self, name)) != ():
-                raise ValueError(f"StelaCSF: {name} must be a scalar, got shape {jnp.shape(getattr(self, name))}")
+                raise PlodError(f"StelaCSF: {name} must be a scalar, got shape {jnp.shape(getattr(self, name))}")
         for name in ("luminance", "area"):
             val = getattr(self, name)
             if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
-                raise ValueError(f"StelaCSF: default {name} must be a finite positive number, got {val!r}")
+                raise PlodError(f"StelaCSF: default {name} must be a finite positive number, got {val!r}")
 
     # ---------------------------------------------------------------- components (natural log)
     @staticmethod
     def _ln_hyper(p0, p1, p2, L):
         """ln of p0 (1 + p1/L)^-p2."""
-        return _safe_log(p0) - p2 * jnp.log1p(p1 / L)
+        return safe_log(p0) - p2 * jnp.log1p(p1 / L)
 
     def _ln_channel(self, lnf, f, L, lnA, ln_s_max, ln_f_max, bw, a):
         """ln of S_x(rho, L, A) for one channel (sustained or transient); L > 0, f > 0 here."""
@@ -192,17 +142,37 @@ class StelaCSF(CSFModel):
         ln_lp = -((lnf - lnfm) ** 2) / _LN10 / (2.0**bw)
         trunc = jnp.log1p(-jnp.clip(a, 0.0, 0.999999))
         ln_lp = jnp.where((lnf < lnfm) & (ln_lp < trunc), trunc, ln_lp)
-        ln_ac = _safe_log(self.a0) - jnp.log1p((f / self.f0) ** 2)
+        ln_ac = safe_log(self.a0) - jnp.log1p((f / self.f0) ** 2)
         size = 0.5 * (ln_ac - jnp.logaddexp(0.0, ln_ac - lnA))
         return ln_s_max + ln_lp + size + lnf
 
+    @_public
     def log_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
-        """Natural log of the sensitivity (no input validation; see ``stimulus_sensitivity``)."""
-        f, e, v = _float(f), _float(e), _float(v)
-        L = _float(self.luminance if luminance is None else luminance)
-        A = _float(self.area if area is None else area)
-        vf = _float(self.vis_field if vis_field is None else vis_field)
-        return _jit_log_s(self, f, e, v, L, A, vf)
+        """:meth:`CSFModel.log_sensitivity` with the visual field ``vis_field`` (deg; default the field)."""
+        return self._stimulus("log_sensitivity", True, f, e, v, luminance=luminance, area=area, vis_field=vis_field)
+
+    @_public
+    def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
+        """Sensitivity 1/c_T of a stimulus: f (cycles/deg), e (deg), v (deg/s), luminance (cd/m2), area (deg2).
+
+        :meth:`CSFModel.stimulus_sensitivity` with the visual field ``vis_field`` (deg); ``luminance`` /
+        ``area`` / ``vis_field`` default to the model's static fields; NaN entries of luminance and area
+        (unknown in a data set) fall back to them too. Result >= 1e-30.
+        """
+        return self._stimulus("stimulus_sensitivity", False, f, e, v, luminance=luminance, area=area,
+                              vis_field=vis_field)
+
+    def _stimulus_log_sensitivity(self, f, e, v, luminance=None, area=None, vis_field=None):
+        L = self.luminance if luminance is None else luminance
+        A = self.area if area is None else area
+        vf = self.vis_field if vis_field is None else vis_field
+        return _jit_log_s(self, f, e, v, as_float(L), as_float(A), as_float(vf))
+
+    def _stimulus_sensitivity(self, f, e, v, luminance=None, area=None, vis_field=None):
+        return jnp.exp(self._stimulus_log_sensitivity(f, e, v, luminance, area, vis_field))
+
+    def _log_sensitivity(self, f, e, v):
+        return self._stimulus_log_sensitivity(f, e, v)
 
     def _log_s(self, f, e, v, L, A, vf):
         valid = (f > 0) & (L > 0) & (A > 0)
@@ -215,17 +185,17 @@ class StelaCSF(CSFModel):
         omega = fs * jnp.maximum(v, 0.0)
 
         # temporal responses
-        ln_r_sust = -_safe_pow(omega, self.beta_sust) / self.sigma_sust
-        ln_r_trans = -((_safe_pow(omega, self.beta_trans) - self.omega_0**self.beta_trans) ** 2) / self.sigma_trans
+        ln_r_sust = -pow_pos(omega, self.beta_sust) / self.sigma_sust
+        ln_r_trans = -((pow_pos(omega, self.beta_trans) - self.omega_0**self.beta_trans) ** 2) / self.sigma_trans
 
         # luminance dependences
         ps, pf, pt = self.sust_s_max, self.sust_f_max, self.trans_s_max
         x = ps[4] * jnp.log1p(ps[3] / Ls)
-        ln_dip = _where_pos(x, lambda s: jnp.log(-jnp.expm1(-s)), jnp.full_like(x, _LN_FLOOR))
+        ln_dip = where_pos(x, lambda s: jnp.log(-jnp.expm1(-s)), jnp.full_like(x, LN_FLOOR))
         ln_smax_sust = self._ln_hyper(ps[0], ps[1], ps[2], Ls) + ln_dip
         ln_fmax_sust = self._ln_hyper(pf[0], pf[1], pf[2], Ls)
-        ln_smax_trans = _safe_log(pt[1]) + pt[0] * jnp.log(Ls)
-        ln_fmax_trans = _safe_log(self.trans_f_max)
+        ln_smax_trans = safe_log(pt[1]) + pt[0] * jnp.log(Ls)
+        ln_fmax_trans = safe_log(self.trans_f_max)
 
         ln_sust = self._ln_channel(lnf, fs, Ls, lnA, ln_smax_sust, ln_fmax_sust, self.sust_bw, self.sust_a)
         ln_trans = self._ln_channel(lnf, fs, Ls, lnA, ln_smax_trans, ln_fmax_trans, self.trans_bw, self.trans_a)
@@ -235,7 +205,7 @@ class StelaCSF(CSFModel):
         drop = alpha * self.ecc_drop + (1 - alpha) * self.ecc_drop_nasal
         drop_f = alpha * self.ecc_drop_f + (1 - alpha) * self.ecc_drop_f_nasal
         ln_s = ln_s - _LN10 * (drop + fs * drop_f) * es
-        return jnp.where(valid, jnp.maximum(ln_s, _LN_FLOOR), _LN_FLOOR)
+        return jnp.where(valid, jnp.maximum(ln_s, LN_FLOOR), LN_FLOOR)
 
     # ---------------------------------------------------------------- peak frequency
     _PEAK_GRID: ClassVar[int] = 17
@@ -247,7 +217,7 @@ class StelaCSF(CSFModel):
         u_star, interior = self._peak_log_frequency(e, v)
 
         def dlog(u):
-            return jax.jvp(lambda uu: self.log_sensitivity(jnp.exp(uu), e, v), (u,), (jnp.ones_like(u),))[1]
+            return jax.jvp(lambda uu: self._log_sensitivity(jnp.exp(uu), e, v), (u,), (jnp.ones_like(u),))[1]
 
         return jnp.exp(implicit_root(dlog, u_star, mask=interior))
 
@@ -276,13 +246,13 @@ class StelaCSF(CSFModel):
         roots, the kink and the grid point is kept. Checked against the base class's 49-point grid +
         golden-section search over e in [0, 120], v in [1e-3, 2e3]: never lower in ln S by more than
         2e-9 (float64), and higher by up to 1.4e-3 where golden-section stops at the local maximum.
-        About 60 sensitivity evaluations' worth instead of ~100 (plus the implicit-gradient pass, skipped
-        by :meth:`_peak_frequency_sg` where no gradient is needed: the distance margin).
+        Fewer sensitivity evaluations than the base class's search (plus the implicit-gradient pass,
+        skipped by :meth:`_peak_frequency_sg` where no gradient is needed: the distance margin).
         Returns ``(ln f_peak, interior)`` under stop_gradient; ``interior``: a stationary point inside the grid."""
         shape = jnp.broadcast_shapes(jnp.shape(e), jnp.shape(v))
         dtype = jnp.result_type(e, v, float)
         e_, v_, ms = lax.stop_gradient((e, v, self))
-        logs = lambda u: ms.log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
+        logs = lambda u: ms._log_sensitivity(jnp.exp(u), e_, v_)  # noqa: E731
         n = self._PEAK_GRID
         u_lo, u_hi = math.log(1e-3), math.log(1e3)  # Python floats: weakly typed (no float64 under x64)
         du = (u_hi - u_lo) / (n - 1)
@@ -313,7 +283,7 @@ class StelaCSF(CSFModel):
         # when it lies inside (else at ub), run Newton on each side and keep the best candidate.
         L = jnp.asarray(self.luminance, dtype)
         ln_fm_s = ms._ln_hyper(ms.sust_f_max[0], ms.sust_f_max[1], ms.sust_f_max[2], L)
-        ln_fm_t = _safe_log(ms.trans_f_max)
+        ln_fm_t = safe_log(ms.trans_f_max)
         u_ks = ln_fm_s - jnp.sqrt(-jnp.log1p(-jnp.clip(ms.sust_a, 0.0, 0.999999)) * _LN10 * 2.0**ms.sust_bw)
         u_kt = ln_fm_t - jnp.sqrt(-jnp.log1p(-jnp.clip(ms.trans_a, 0.0, 0.999999)) * _LN10 * 2.0**ms.trans_bw)
         lo, hi = ub - du, ub + du
@@ -335,81 +305,73 @@ class StelaCSF(CSFModel):
 
     # ---------------------------------------------------------------- fast paths (concrete constants)
     def _fast_table(self, dtype):
-        """The per-model peak table of :mod:`pmetric._stela_fast` (built once per constants, float64), or
+        """The per-model peak table of :mod:`pmetric._stela_peak` (built once per constants, float64), or
         None: traced constants (fitting, gradients w.r.t. the model), a dtype other than float32 /
         float64, or constants the fast path does not cover."""
-        dtype = jnp.dtype(dtype)
-        if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
+        vals = self._concrete_fields(_FIELDS, dtype)
+        if vals is None:
             return None
-        vals = [getattr(self, name) for name in _FIELDS]
-        if not all(_is_concrete(x) for x in vals):
-            return None
-        # the values the generic path computes with (the fields cast to dtype), as float64
-        vals = [np.asarray(x).astype(dtype).astype(np.float64) for x in vals]
-        consts = _fast.consts_of(vals, self.luminance, self.area, self.vis_field)
-        return None if consts is None else _fast.build_table(consts)
+        consts = _peak.consts_of(vals, self.luminance, self.area, self.vis_field)
+        return None if consts is None else _peak.build_table(consts)
 
     def _fast_peak(self, tab, e, v, dtype):
         """``(ln f_peak, ln S_peak)`` at (e, v) (deg, deg/s; 1-D arrays) from the table, with the few
         unsettled elements (about 0.2 % of random inputs: near the kinks, outside the table) solved by
         the generic :meth:`_peak_log_frequency` after compaction. No gradient."""
-        up, mp, settled = lax.optimization_barrier(_fast.fast_peak(tab, e, v, dtype))
+        up, mp, settled = lax.optimization_barrier(_peak.fast_peak(tab, e, v, dtype))
         ms = lax.stop_gradient(self)
         up = rare_update(lambda e1, v1: ms._peak_log_frequency(e1, v1)[0], up, ~settled, (e, v))
         m_r = ms._log_s(jnp.exp(up), e, v, *self._defaults(dtype))
-        mp = jnp.where(settled, jnp.maximum(mp, _LN_FLOOR), m_r)
+        mp = jnp.where(settled, jnp.maximum(mp, LN_FLOOR), m_r)
         return up, mp
 
     def _defaults(self, dtype):
         return tuple(jnp.asarray(x, dtype) for x in (self.luminance, self.area, self.vis_field))
 
-    def is_perceptible(self, c, f, e=0.0, v=0.0):
+    def _is_perceptible(self, c, f, e, v):
         """True where contrast ``c`` at frequency ``f`` (cycles/deg), eccentricity ``e`` (deg) and
         velocity ``v`` (deg/s) is visible at the default luminance / area / visual field:
         ``c >= 1 / S(max(f, f_peak(e, v)), e, v)`` (see :meth:`CSFModel.is_perceptible`).
 
         Concrete constants (a model closed over by ``jit``): the peak comes from the per-model table of
-        :mod:`pmetric._stela_fast` (one analytic Newton step per candidate, exact to rounding) and ln S
+        :mod:`pmetric._stela_peak` (one analytic Newton step per candidate, exact to rounding) and ln S
         at f from the model's formula; otherwise the generic kink-aware search. Both agree except within
-        rounding of the threshold (Mantiuk, Ashraf & Chapiro 2022 for the model)."""
-        c, f, e, v = check_inputs("is_perceptible", c=c, f=f, e=e, v=v)
+        rounding of the threshold ([MAC22] for the model)."""
         shape = jnp.broadcast_shapes(c.shape, f.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, f, e, v, float)
-        self = self._like(c, f, e, v)
         tab = self._fast_table(dtype)
         if tab is None:
-            return super().is_perceptible(c, f, e, v)
+            return super()._is_perceptible(c, f, e, v)
         c, f, e, v = (jnp.broadcast_to(x, shape).astype(dtype).reshape(-1) for x in (c, f, e, v))
         up, mp = lax.optimization_barrier(self._fast_peak(tab, e, v, dtype))  # no recomputation per consumer
         below = jnp.log(jnp.where(f > 0, f, 1.0)) < up
         below = below | (f <= 0)
         ls = self._log_s(f, e, v, *self._defaults(dtype))
-        out = _log_guard(c) + jnp.where(below, mp, ls) >= 0
+        out = log_guard(c) + jnp.where(below, mp, ls) >= 0
         return out.reshape(shape)
 
     def _fast_ray(self, dtype):
-        """(table, ray constants) of :mod:`pmetric._stela_fast` for concrete constants, else None."""
+        """(table, ray constants) of :mod:`pmetric._stela_peak` for concrete constants, else None."""
         tab = self._fast_table(dtype)
         if tab is None:
             return None
         fp_max = float(np.exp(np.nanmax(tab.cand[..., [0, 3]])))
-        return tab, _fast.build_ray(tab.k, fp_max), _fast.build_ray(tab.k, fp_max, _fast.RAY_DU_FINE)
+        return tab, _ray.build_ray(tab.k, fp_max), _ray.build_ray(tab.k, fp_max, _ray.RAY_DU_FINE)
 
     def _generic_distance_value(self, c, th, e, v):
         """The base class's scan + safeguarded Newton (value only; ``th > 0``): k, or 0. The margin's peak
         frequency is the kink-aware search of :meth:`_peak_log_frequency` (no nested compaction: this
-        runs on few elements, and compiles three times faster)."""
+        runs on few elements, and compiles faster)."""
         w, found, _ = self._generic_scan(c, th, e, v, peak=lambda ek, vk: jnp.exp(self._peak_log_frequency(ek, vk)[0]))
         return jnp.where(found, jnp.exp(w), 0.0)
 
-    def imperceptible_distance(self, c, theta, e=0.0, v=0.0):
+    def _imperceptible_distance(self, c, theta, e, v):
         """Viewing-distance multiple beyond which a change of Michelson contrast ``c`` spanning ``theta``
         deg at eccentricity ``e`` (deg) and retinal velocity ``v`` (deg/s) is imperceptible (definition:
-        :meth:`CSFModel.imperceptible_distance`; model: Mantiuk, Ashraf & Chapiro 2022, ACM TOG
-        41(4):145). Seen k times farther away the change has f = k / (2 theta) cycles/deg, e / k and
+        :meth:`CSFModel.imperceptible_distance`; model: [MAC22]). Seen k times farther away the change has f = k / (2 theta) cycles/deg, e / k and
         v / k; 0 where ``theta = 0`` or nothing is perceptible.
 
-        Concrete constants (the usual case): a direct solve along the ray (:func:`pmetric._stela_fast.
+        Concrete constants (the usual case): a direct solve along the ray (:func:`pmetric._stela_ray.
         ray_distance`). The temporal frequency v / (2 theta) and the frequency-dependent eccentricity
         drop ``drop_f e / (2 theta)`` are constant along it, so the falling-limb margin
         m(u) = ln c + ln S(f, e / k, v / k) (u = ln f) is a closed form in which, on a static grid of u
@@ -419,73 +381,47 @@ class StelaCSF(CSFModel):
         terms); safeguarded Newton from the secant start then polishes the root (3 steps in float32, 5
         in float64). Below the peak frequency the threshold is the peak's: the answer is the largest
         falling-limb root wherever the peak sensitivity does not fall along the ray between that root
-        and the highest peak frequency (checked per model, see :func:`pmetric._stela_fast.build_ray`).
+        and the highest peak frequency (checked per model, see :func:`pmetric._stela_ray.build_ray`).
         Elements this pass cannot certify (a root close to a tangency, a ray through the small region
         where the transient channel's gain with velocity beats the eccentricity drop, c > 1, a root
-        not converged) -- about 0.1 % of random inputs -- are gathered (:func:`pmetric._kelly.
+        not converged) -- about 0.1 % of random inputs -- are gathered (:func:`pmetric._numerics.
         rare_update`) and solved by the generic scan of :meth:`CSFModel.imperceptible_distance`.
         Traced constants (fitting): the generic method. Gradients w.r.t. c, theta, e, v and the
         constants: implicit-function theorem on the exact margin (the peak frequency under stop_gradient,
         exact by the envelope theorem where it binds)."""
-        c, theta, e, v = check_inputs("imperceptible_distance", c=c, theta=theta, e=e, v=v)
         shape = jnp.broadcast_shapes(c.shape, theta.shape, e.shape, v.shape)
         dtype = jnp.result_type(c, theta, e, v, float)
-        self = self._like(c, theta, e, v)
         fast = self._fast_ray(dtype)
         if fast is None:
-            return super().imperceptible_distance(c, theta, e, v)
+            return super()._imperceptible_distance(c, theta, e, v)
         tab, ray, fine = fast
         c, theta, e, v = (jnp.broadcast_to(x, shape).astype(dtype).reshape(-1) for x in (c, theta, e, v))
         sg = lax.stop_gradient
         c_, t_, e_, v_ = sg((c, theta, e, v))
         pos_ = t_ > 0
         th_ = jnp.where(pos_, t_, 1.0)
-        k0 = _fast.ray_distance(tab.k, ray, c_, th_, e_, v_, dtype)
+        k0 = _ray.ray_distance(tab.k, ray, c_, th_, e_, v_, dtype)
         k0 = jnp.where(pos_, k0, 0.0)
         ms = sg(self)
 
         def tier2(c1, t1, e1, v1):  # the same solve on a 6 times finer grid
-            return _fast.ray_distance(tab.k, fine, c1, jnp.where(t1 > 0, t1, 1.0), e1, v1, dtype)
+            return _ray.ray_distance(tab.k, fine, c1, jnp.where(t1 > 0, t1, 1.0), e1, v1, dtype)
 
         def slow(c1, t1, e1, v1):
             return ms._generic_distance_value(c1, jnp.where(t1 > 0, t1, 1.0), e1, v1)
 
         k1 = rare_update(tier2, k0, jnp.isnan(k0), (c_, t_, e_, v_))
-        # the generic scan costs ~100 us per element: gather few (up to n / 8192 elements, or their
+        # the generic scan is costly per element: gather few (up to n / 8192 elements, or their
         # blocks of 16; beyond that every element)
         cap = max(64, c_.size // 8192)
         k_star = rare_update(slow, k1, jnp.isnan(k1), (c_, t_, e_, v_), max_blocks=cap, cap=cap)
         ok = k_star > 0
         pos = theta > 0
         th = jnp.where(pos, theta, 1.0)
-        k = implicit_solution(_distance_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, e, v)
+        k = implicit_solution(distance_margin_k, jnp.where(ok, k_star, 1.0), ok, self, c, th, e, v)
         return jnp.where(ok, k, 0.0).reshape(shape)
 
-    def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
-        """Sensitivity 1/c_T of a stimulus: f (cycles/deg), e (deg), v (deg/s), luminance (cd/m2), area (deg2).
-
-        ``luminance`` / ``area`` / ``vis_field`` default to the model's static fields; NaN entries of
-        luminance and area (unknown in a data set) fall back to them too. Arrays broadcast; result has
-        the broadcast shape and is >= 1e-30. Negative or NaN inputs raise ValueError when concrete.
-        """
-        L = fill_nan(luminance, self.luminance)
-        A = fill_nan(area, self.area)
-        f, e, v, L, A, vis_field = check_inputs(
-            "StelaCSF.stimulus_sensitivity", f=f, e=e, v=v, luminance=L, area=A, vis_field=vis_field
-        )
-        return jnp.exp(self.log_sensitivity(f, e, v, L, A, vis_field))
-
-    def sensitivity(self, f, e=0.0, v=0.0):
-        """Sensitivity at the default luminance (100 cd/m2) and area (1 deg2); f cycles/deg, e deg, v deg/s."""
-        return self.stimulus_sensitivity(f, e, v)
-
-
 _FIELDS = tuple(StelaCSF.param_bounds)
-
-
-def _distance_margin_k(k, model, c, th, e, v):
-    """ln c - ln c_T at distance multiple k (the exact margin, for the implicit-function derivative)."""
-    return model._distance_margin(k, c, th, e, v)
 
 
 @eqx.filter_jit

@@ -21,3 +21,24 @@ def check_distance_definition(m, c, theta, e, v, grid, rel, n_fine):
             ks = k * (1 - rel)
             assert bool(perceptible(m, c, ks / (2 * theta), e / ks, v / ks)), k  # perceptible at k
     return k, kk, p
+
+
+def _generic(hook, m, method, **arrays):
+    """The base class's generic hook ``CSFModel.<hook>`` (not the model's closed form) on inputs checked
+    and cast as the public methods do."""
+    import jax.numpy as jnp
+
+    from pmetric._base import CSFModel
+
+    mm, *xs, shape = m._checked(method, **arrays)
+    return jnp.broadcast_to(getattr(CSFModel, hook)(mm, *xs), shape)
+
+
+def generic_distance(m, c, theta, e=0.0, v=0.0):
+    """``imperceptible_distance`` by the generic scan of :class:`pmetric.CSFModel`."""
+    return _generic("_imperceptible_distance", m, "imperceptible_distance", c=c, theta=theta, e=e, v=v)
+
+
+def generic_threshold_frequency(m, c, e=0.0, v=0.0):
+    """``threshold_frequency`` by the generic root finder of :class:`pmetric.CSFModel`."""
+    return _generic("_threshold_frequency", m, "threshold_frequency", c=c, e=e, v=v)

@@ -52,3 +52,36 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip("../shared data not present")
     return SHARED
+
+
+# The slow tier (``make test-slow``; ``.ci/run`` runs it after ``make test``): the compile-heavy model
+# checks that took the most time in ``pytest -n 2 --durations=50`` (each 20-80 s of one worker), so that
+# ``make test`` stays within 10 minutes on a 2-core machine. Marked here by node id, in one place.
+SLOW_TESTS = frozenset({
+    "tests/test_regression.py::test_same_keys_pinned",
+    "tests/test_regression.py::test_behaviour_unchanged[csf]",
+    "tests/test_regression.py::test_behaviour_unchanged[mesh]",
+    "tests/test_regression.py::test_behaviour_unchanged[fit]",
+    "tests/test_csf.py::test_gradients_match_finite_differences[kelly1979]",
+    "tests/test_csf.py::test_gradients_match_finite_differences[reddy_st]",
+    "tests/test_csf.py::test_jit_vmap_match_eager[kelly1979]",
+    "tests/test_csf.py::test_jit_of_bound_method[kelly1979]",
+    "tests/test_csf.py::test_finite_values_and_gradients_on_dense_grid[kelly1979-float32]",
+    "tests/test_csf.py::test_finite_values_and_gradients_on_dense_grid[kelly1979-float64]",
+    "tests/test_stela.py::test_fast_distance_definition_and_generic_solver[True]",
+    "tests/test_stela.py::test_fast_is_perceptible_matches_generic[False]",
+    "tests/test_stela.py::test_imperceptible_distance_vs_grid",
+    "tests/test_stela.py::test_float32_inputs_to_a_float64_model_under_x64",
+    "tests/test_stela.py::test_fast_distance_broadcasts",
+    "tests/test_kelly.py::test_float32_values_and_gradients_finite",
+    "tests/test_table.py::test_exact_distance_gradients_vs_finite_differences",
+    "tests/test_table.py::test_exact_distance_finite_values_and_gradients[float32]",
+    "tests/test_table.py::test_exact_distance_random_tables_vs_brute_force",
+    "tests/test_inverse.py::test_float32_input_with_python_scalars_under_x64[kelly1979]",
+})
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.nodeid in SLOW_TESTS:
+            item.add_marker(pytest.mark.slow)

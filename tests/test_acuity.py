@@ -1,4 +1,4 @@
-"""Reddy's acuity model (seed 000 Eq 4-5): the printed pieces, the smooth variant, the distance key."""
+"""Reddy's acuity model [Red01 Eq 4-5]: the printed pieces, the smooth variant, the distance key."""
 
 import math
 
@@ -16,6 +16,7 @@ import pmetric as pm
 from _definition import check_distance_definition  # noqa: E402
 from _definition import distance as _dist  # noqa: E402
 from _definition import perceptible as _perc  # noqa: E402
+from _definition import generic_distance  # noqa: E402
 
 
 def _g_printed(v):
@@ -32,11 +33,11 @@ def _m_printed(e):
 with jax.enable_x64(True):
     EXACT = pm.ReddyAcuity()
     CAPPED = pm.ReddyAcuity(xi=30.0)
-    SMOOTH = pm.SmoothReddyAcuity()
-    SMOOTH_CAPPED = pm.SmoothReddyAcuity(xi=30.0)
+    SMOOTH = pm.ReddyAcuity(smooth=True)
+    SMOOTH_CAPPED = pm.ReddyAcuity(xi=30.0, smooth=True)
 MODELS = {"exact": EXACT, "capped": CAPPED, "smooth": SMOOTH, "smooth_capped": SMOOTH_CAPPED}
 
-_acuity = jax.jit(lambda m, v, e: m.acuity(v, e))
+_acuity = jax.jit(lambda m, v, e: m.acuity(e, v))  # note: acuity takes (e, v)
 
 
 def test_printed_pieces_and_knots(x64):
@@ -192,14 +193,14 @@ def test_gradients_match_finite_differences(name, x64):
         assert float(gflat[j]) == pytest.approx((fp - fm) / (2 * h), rel=1e-4, abs=1e-7), j
     # the acuity surface itself
     va, ea = np.array([1.0, 21.0, 51.0]), np.array([31.0, 1.5, 3.0])
-    ga = jax.vmap(jax.grad(lambda v, e: m.log_acuity(v, e), argnums=(0, 1)))(va, ea)
+    ga = jax.vmap(jax.grad(lambda v, e: m.log_acuity(e, v), argnums=(0, 1)))(va, ea)
     for i, (dv, de) in enumerate(((1e-6, 0.0), (0.0, 1e-6))):
-        fd = (np.asarray(m.log_acuity(va + dv, ea + de)) - np.asarray(m.log_acuity(va - dv, ea - de))) / 2e-6
+        fd = (np.asarray(m.log_acuity(ea + de, va + dv)) - np.asarray(m.log_acuity(ea - de, va - dv))) / 2e-6
         np.testing.assert_allclose(np.asarray(ga[i]), fd, rtol=1e-5, atol=1e-9)
 
 
 def _all_fns(m, c, t, e, v):
-    return (m.imperceptible_distance(c, t, e, v), m.log_acuity(v, e), m.threshold_frequency(c, e, v))
+    return (m.imperceptible_distance(c, t, e, v), m.log_acuity(e, v), m.threshold_frequency(c, e, v))
 
 
 _all_jit = jax.jit(_all_fns)
@@ -212,7 +213,7 @@ def test_finite_values_and_gradients_on_dense_grid(dtype):
     e = jnp.asarray([0.0, 1.0, 5.79, 30.0, 1e4], dt)[None, :, None, None]
     v = jnp.asarray([0.0, 0.05, 0.825, 118.3, 1e6], dt)[None, None, :, None]
     c = jnp.asarray([0.0, 1e-3, 1.0], dt)[None, None, None, :]
-    for m in (pm.ReddyAcuity(), pm.ReddyAcuity(xi=30.0), pm.SmoothReddyAcuity(), pm.SmoothReddyAcuity(xi=30.0)):
+    for m in (pm.ReddyAcuity(), pm.ReddyAcuity(xi=30.0), pm.ReddyAcuity(smooth=True), pm.ReddyAcuity(xi=30.0, smooth=True)):
         for val in _all_jit(m, c, th, e, v):
             assert val.dtype == dt and np.isfinite(np.asarray(val)).all()
         for g in _all_grad(m, c, th, e, v):
@@ -232,9 +233,9 @@ def test_model_built_under_x64_runs_in_float32():
 def test_bad_input_raises():
     m = pm.ReddyAcuity()
     with pytest.raises(ValueError, match="v must be >= 0"):
-        m.acuity(-1.0, 0.0)
+        m.acuity(0.0, -1.0)
     with pytest.raises(ValueError, match="e contains NaN"):
-        m.acuity(0.0, np.nan)
+        m.acuity(np.nan, 0.0)
     with pytest.raises(ValueError, match="theta"):
         m.imperceptible_distance(0.5, -1.0)
     with pytest.raises(ValueError, match="do not broadcast"):
@@ -257,7 +258,7 @@ def _random_distance_inputs(rng, n):
     return c, theta, e, v
 
 
-_generic_dist = jax.jit(lambda m, c, t, e, v: pm.CSFModel.imperceptible_distance(m, c, t, e, v))
+_generic_dist = jax.jit(generic_distance)
 _VARIANTS = {  # Reddy's constants, the cap, M's outer piece (m_scale < 4, < 1), G's middle beyond u = 11.4
     "reddy": {}, "capped": dict(xi=30.0), "flat_m": dict(m_scale=2.0, m_rate=0.1),
     "m_below_1": dict(m_scale=0.5, m_rate=0.05), "shallow_g": dict(g_slope=3.0), "steep_g": dict(g_slope=200.0),
@@ -358,3 +359,18 @@ def test_exact_distance_is_one_loop_free_pass():
     jaxpr = str(jax.make_jaxpr(lambda c, t, e, v: m.imperceptible_distance(c, t, e, v))(x, x, x, x))
     for prim in ("while", "scan", "cond", "switch"):
         assert prim not in jaxpr, prim
+
+
+def test_acuity_takes_e_then_v():
+    """``acuity(e, v)`` / ``log_acuity(e, v)``: the (f, e, v) order of every method."""
+    m = pm.ReddyAcuity()
+    g10 = 57.69 - 27.78 * math.log10(10.0)  # G(10 deg/s), M(0) = 1
+    m20 = 60.0 * 7.49 / (0.3 * 20.0 + 1.0) ** 2  # G(0) M(20 deg)
+    assert float(m.acuity(0.0, 10.0)) == pytest.approx(g10, rel=1e-5)
+    assert float(m.acuity(v=10.0)) == pytest.approx(g10, rel=1e-5)
+    assert float(m.acuity(20.0, 0.0)) == pytest.approx(m20, rel=1e-5)
+    assert float(m.acuity(e=20.0)) == pytest.approx(m20, rel=1e-5)
+    assert float(m.log_acuity(20.0, 0.0)) == pytest.approx(math.log(m20), rel=1e-5)
+    assert float(m.threshold_frequency(1.0, 20.0, 0.0)) == pytest.approx(m20, rel=1e-5)
+    with pytest.raises(pm.PlodError, match="acuity: v must be >= 0"):
+        m.acuity(0.0, -1.0)

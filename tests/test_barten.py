@@ -187,7 +187,7 @@ def test_generic_solvers_meet_definitions():
 
 # ------------------------------------------------------------------ fast solvers (concrete constants)
 from pmetric import CSFModel  # noqa: E402
-from pmetric._barten import _START_FIT, _limb  # noqa: E402
+from pmetric._barten_limb import _START_FIT, _limb  # noqa: E402
 
 _generic_tf = eqx.filter_jit(lambda mm, c: mm.threshold_frequency(c))  # traced constants: generic solvers
 _generic_k = eqx.filter_jit(lambda mm, c, t: mm.imperceptible_distance(c, t))

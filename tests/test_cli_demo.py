@@ -12,7 +12,7 @@ from experiments.cli import main
 def test_demo_json(capsys):
     assert main(["demo", "--subdivisions", "3", "--budget-fraction", "0.2", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    # The default display spans 46 degrees (seed 004's study) and xi = 1/(2 * degrees per pixel).
+    # The default display spans 46 degrees (the study of [LH01 §6.2]) and xi = 1/(2 * degrees per pixel).
     d = out["display"]
     assert abs(d["field_of_view_deg"][0] - 46.0) < 1e-3
     # Centre pixel of a 1920-pixel screen spanning 46 deg: 2 tan(23 deg) / 1920 of the distance, in degrees.

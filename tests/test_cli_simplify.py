@@ -81,7 +81,7 @@ def test_budget_larger_than_mesh_keeps_everything(capsys, mesh_file):
         (["--budget", "10", "--eye", "1,2"], "--eye needs three comma-separated numbers"),
         (["--budget", "10", "--eye", "0,0,5", "--target", "a,b,c"], "--target needs three comma-separated numbers"),
         (["--budget", "ten"], "--budget needs a whole number"),
-        (["--budget", "-3"], "--budget must be >= 0"),
+        (["--budget", "-3"], "--budget must be >= 1"),
         (["--budget", "10", "--fov", "200"], "--fov must be"),
         (["--budget", "10", "--gaze", "5"], "--gaze needs two comma-separated numbers"),
         (["--budget", "10", "--gaze-error", "-1"], "--gaze-error must be"),

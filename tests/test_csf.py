@@ -166,3 +166,119 @@ def test_constructor_rejects_bad_constants():
         pm.ManosSakrison(-1.0)
     with pytest.raises(ValueError, match="delta must be finite"):
         pm.KellyAbstract(delta=np.nan)
+
+
+# ------------------------------------------------------------------------------ the CSFModel contract
+class _OnlyLog(pm.CSFModel):
+    """A model implementing nothing but the ``_log_sensitivity`` hook (peak 1 / e^2 s0 at f = 2)."""
+
+    s0: jax.Array
+    inputs = ("f", "e")
+
+    def __init__(self, s0=400.0):
+        self.s0 = jnp.asarray(s0)
+
+    def _log_sensitivity(self, f, e, v):
+        from pmetric._numerics import log_guard
+
+        return jnp.log(self.s0) + 2.0 * log_guard(f) - f - 0.05 * e
+
+
+class _Legacy(pm.CSFModel):
+    """Written for the former contract: overrides the public ``sensitivity`` only."""
+
+    def sensitivity(self, f, e=0.0, v=0.0):
+        f = jnp.asarray(f)
+        return 300.0 * f * jnp.exp(-f / 3.0)
+
+
+def test_minimal_subclass_gets_every_public_method(x64):
+    m = _OnlyLog()
+    c, th = np.array([0.05, 0.2, 1.0]), np.array([0.1, 0.5, 1.0])
+    e, v = np.array([0.0, 5.0, 20.0]), 1.0
+    f = np.array([0.5, 2.0, 8.0])
+    ls = np.asarray(m.log_sensitivity(f, e, v))
+    np.testing.assert_allclose(ls, np.log(400.0) + 2 * np.log(f) - f - 0.05 * e, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(m.sensitivity(f, e, v)), np.exp(ls), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(m.stimulus_sensitivity(f, e, v, luminance=50.0)), np.exp(ls), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(m.threshold_contrast(f, e, v)), np.exp(-ls), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(m.peak_frequency(e, v)), 2.0, rtol=1e-5)
+    p = np.asarray(m.is_perceptible(c, f, e, v))
+    assert p.dtype == bool and p.shape == (3,)
+    tf = np.asarray(m.threshold_frequency(c, e, v))
+    ok = tf > 2.1
+    assert ok.any()
+    np.testing.assert_allclose(np.asarray(m.threshold_contrast(tf, e, v))[ok], c[ok], rtol=1e-8)
+    k = np.asarray(m.imperceptible_distance(c, th, e, v))
+    assert k.shape == (3,) and np.isfinite(k).all() and (k >= 0).all()
+    # the answer's definition: perceptible just below k, imperceptible just above
+    for kk, expect in ((k * (1 - 1e-6), True), (k * (1 + 1e-6), False)):
+        got = np.asarray(m.is_perceptible(c, kk / (2 * th), e / kk, v / kk))
+        assert (got[k > 0] == expect).all()
+    # broadcasting: scalar defaults give the broadcast shape
+    assert m.threshold_contrast(np.ones((2, 1)), np.zeros(3)).shape == (2, 3)
+    # gradients flow through every hook's generic default
+    g = jax.grad(lambda cc: jnp.sum(m.imperceptible_distance(cc, th, e, v)))(jnp.asarray(c))
+    assert np.isfinite(np.asarray(g)).all()
+
+
+@pytest.mark.parametrize("call", [
+    lambda m: m.sensitivity(-1.0),
+    lambda m: m.log_sensitivity(np.nan),
+    lambda m: m.stimulus_sensitivity(1.0, -2.0),
+    lambda m: m.threshold_contrast(1.0, 0.0, -1.0),
+    lambda m: m.peak_frequency(np.nan),
+    lambda m: m.is_perceptible(-0.1, 1.0),
+    lambda m: m.threshold_frequency(0.5, np.nan),
+    lambda m: m.imperceptible_distance(0.5, -1.0),
+    lambda m: m.imperceptible_distance(np.ones(3), np.ones(4)),
+    lambda m: m.sensitivity("x"),
+])
+def test_public_methods_check_inputs_with_plod_error(call):
+    for m in (_OnlyLog(), pm.KellyAbstract(), pm.ReddyAcuity()):  # (a legacy subclass overriding a
+        # public method bypasses its checks)
+        with pytest.raises(pm.PlodError):
+            call(m)
+
+
+def test_model_without_a_hook_is_abstract_and_legacy_subclass_works():
+    class _Nothing(pm.CSFModel):
+        pass
+
+    with pytest.raises(TypeError):
+        _Nothing()
+    with pytest.raises(TypeError):
+        pm.CSFModel()
+    m = _Legacy()
+    f = np.array([1.0, 3.0, 10.0])
+    np.testing.assert_allclose(np.asarray(m.log_sensitivity(f)), np.log(300.0 * f * np.exp(-f / 3.0)), rtol=1e-6)
+    np.testing.assert_allclose(float(m.peak_frequency()), 3.0, rtol=5e-3)  # float32: a flat peak
+    assert float(m.imperceptible_distance(0.1, 0.5)) > 0
+
+
+@pytest.mark.parametrize("name", ["kelly_abstract", "kelly1979", "eccentric", "manos"])
+def test_jit_of_bound_method(name):
+    """``jax.jit(model.imperceptible_distance)`` works (the bound method hashes by the model's identity),
+    as do ``eqx.filter_jit`` of it and the lambda form; the model keeps equinox's value semantics."""
+    m = FACTORIES[name]()
+    c, th = jnp.asarray([0.05, 0.5]), jnp.asarray([0.2, 1.0])
+    e, v = jnp.asarray([0.0, 10.0]), jnp.asarray([1.0, 4.0])
+    want = np.asarray(m.imperceptible_distance(c, th, e, v))
+    np.testing.assert_allclose(np.asarray(jax.jit(m.imperceptible_distance)(c, th, e, v)), want, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(eqx.filter_jit(m.imperceptible_distance)(c, th, e, v)), want, rtol=1e-6)
+    lam = jax.jit(lambda mm, cc, tt: mm.imperceptible_distance(cc, tt, e, v))
+    np.testing.assert_allclose(np.asarray(lam(m, c, th)), want, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(jax.jit(m.is_perceptible)(c, th, e, v)), np.asarray(m.is_perceptible(c, th, e, v)))
+    # bound methods compare like Python's: same function and the same model object
+    assert m.imperceptible_distance == m.imperceptible_distance
+    assert hash(m.imperceptible_distance) == hash(m.imperceptible_distance)
+    twin = FACTORIES[name]()
+    assert m.imperceptible_distance != twin.imperceptible_distance
+    assert m.imperceptible_distance != m.is_perceptible
+    # ... while models keep value equality and stay unhashable (array fields), as in equinox
+    assert bool(m == twin)
+    with pytest.raises(TypeError):
+        hash(m)
+    # a bound method is still a pytree: gradients with respect to the model through it
+    g = eqx.filter_grad(lambda bm: jnp.sum(bm(c, th, e, v)))(m.imperceptible_distance)
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(g))

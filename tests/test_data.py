@@ -1,4 +1,4 @@
-"""Tests for pmetric.CalibrationData (CSV reading, validation, selection, atomic output)."""
+"""Tests for optim.fit.CalibrationData (CSV reading, validation, selection, atomic output)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import pmetric
-from pmetric import CalibrationData
+import optim.fit
+from optim.fit import CalibrationData
 
 _FLOATS = ("f", "t_frequency", "velocity", "e", "luminance", "area", "log_threshold", "n",
            "var_log_threshold", "vis_field", "ge_sigma", "orientation")
@@ -183,7 +183,7 @@ def test_real_modelfest_observers(shared_dir):
 
 
 def test_public_export():
-    assert pmetric.CalibrationData is CalibrationData
+    assert optim.fit.CalibrationData is CalibrationData
 
 
 _finite = dict(allow_nan=False, allow_infinity=False)

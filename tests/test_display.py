@@ -38,7 +38,7 @@ def test_degrees_per_pixel_and_xi(dtype):
     pitch = 0.5 / 1000
     dpp = math.degrees(2 * math.atan(pitch / 1.0))
     np.testing.assert_allclose(d.degrees_per_pixel(), dpp, rtol=RTOL[dtype])
-    np.testing.assert_allclose(d.xi, 1 / (2 * dpp), rtol=RTOL[dtype])  # seed 000 Eq 5
+    np.testing.assert_allclose(d.xi, 1 / (2 * dpp), rtol=RTOL[dtype])  # [Red01 Eq 5]
     np.testing.assert_allclose(d.max_frequency(), 1 / (2 * dpp), rtol=RTOL[dtype])
     # off-centre pixel on the horizontal midline: atan difference of its edges
     x = 900.0

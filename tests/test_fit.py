@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 import optim
-from optim import _fit
-from pmetric import CalibrationData
+from optim.fit import CalibrationData, _problem
 from pmetric._base import CSFModel as _Base
 
 
@@ -145,12 +144,12 @@ def test_fit_restricts_fields(clean):
 
 def test_loss_gradients_finite_at_domain_edges(clean):
     with jax.enable_x64(True):
-        prob = _fit._Problem(START, clean)
-        fixed, arrays = _fit._device_args(prob)
+        prob = _problem.Problem(START, clean)
+        fixed, arrays = _problem.device_args(prob)
 
         @jax.jit
         def loss(theta):
-            r = _fit._residuals(theta, fixed, arrays, prob.static)
+            r = _problem.residuals(theta, fixed, arrays, prob.static)
             return jnp.sum(r * r)
 
         base = jnp.asarray(prob.theta0)
@@ -167,13 +166,13 @@ def test_loss_gradients_finite_at_domain_edges(clean):
 
 def test_reparametrisation_round_trip():
     for bounds in [(None, None), (0.0, None), (None, 2.0), (-1.0, 3.0)]:
-        kind, lo, hi = _fit._kind(bounds)
-        leaf = _fit._Leaf("x", "x", 0, (3,), 3, kind, lo, hi)
+        kind, lo, hi = _problem.bounds_kind(bounds)
+        leaf = _problem.Leaf("x", "x", 0, (3,), 3, kind, lo, hi)
         x = np.array([0.5, 1.0, 1.9])
         with jax.enable_x64(True):
-            back, d = _fit._from_u(jnp.asarray(_fit._to_u(x, leaf)), leaf)
+            back, d = _problem.from_u(jnp.asarray(_problem.to_u(x, leaf)), leaf)
             np.testing.assert_allclose(np.asarray(back), x, rtol=1e-12)
-            fd = (np.asarray(_fit._from_u(jnp.asarray(_fit._to_u(x, leaf)) + 1e-6, leaf)[0]) - x) / 1e-6
+            fd = (np.asarray(_problem.from_u(jnp.asarray(_problem.to_u(x, leaf)) + 1e-6, leaf)[0]) - x) / 1e-6
             np.testing.assert_allclose(np.asarray(d), fd, rtol=1e-4)
 
 
@@ -289,3 +288,84 @@ def test_nested_model_uses_inner_bounds_and_recovers_constants():
     # k1 has bounds (0, inf) from RovamoVirsu.param_bounds: a negative start is refused
     with pytest.raises(ValueError, match="magnification.k1"):
         optim.fit_least_squares(pm.Eccentric(pm.ManosSakrison(), pm.RovamoVirsu("linear", k1=-0.1)), data)
+
+
+# ------------------------------------------------------------------------------ issue 9: one home for fitting
+class ToyVisCSF(ToyCSF):
+    """ToyCSF whose sensitivity falls with the visual field: declares the ``vis_field`` input."""
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e", "vis_field")
+
+    def stimulus_sensitivity(self, f, e=0.0, v=0.0, luminance=None, area=None, vis_field=None):
+        s = self.sensitivity(f, e, v)
+        return s if vis_field is None else s * 10.0 ** (-0.05 * jnp.asarray(vis_field))
+
+
+class ToyVisUndeclared(ToyVisCSF):
+    """Accepts ``vis_field`` in its signature but does not declare it: fitting must not pass it."""
+
+    inputs: ClassVar[tuple[str, ...]] = ("f", "e")
+
+
+def test_fitting_passes_vis_field_only_to_models_declaring_it():
+    import pmetric
+
+    assert "vis_field" in pmetric.StelaCSF.inputs
+    rng = np.random.default_rng(3)
+    f = 10 ** rng.uniform(-0.5, 1.2, 200)
+    vis = rng.uniform(1.0, 20.0, 200)
+    truth = ToyVisCSF(**TRUE)
+    with jax.enable_x64(True):
+        ls = np.log10(np.asarray(truth.stimulus_sensitivity(f, 0.0, vis_field=vis), np.float64))
+    data = CalibrationData.from_arrays(f, log_threshold=-ls, vis_field=vis, luminance=50.0, area=2.0)
+    with jax.enable_x64(True):
+        assert _problem.Problem(ToyVisCSF(), data).static.has_vis
+        assert not _problem.Problem(ToyVisUndeclared(), data).static.has_vis
+    declared = optim.fit_least_squares(ToyVisCSF(**TRUE), data, fit=["gain"])
+    undeclared = optim.fit_least_squares(ToyVisUndeclared(**TRUE), data, fit=["gain"])
+    assert declared.rmse_log10 < 1e-6  # the model saw vis_field: the data are its own outputs
+    assert undeclared.rmse_log10 > 0.05  # the vis_field term was left out
+
+
+@pytest.mark.parametrize("backend", ["optimistix", "jaxopt"])
+def test_outcomes_are_optimistix_results_members(clean, backend):
+    import optimistix as optx
+
+    ok = optim.fit_least_squares(START, clean, backend=backend)
+    assert ok.result == "successful" and ok.result in optim.fit.OUTCOMES
+    assert bool(ok.outcome == optx.RESULTS.successful)
+    short = optim.fit_least_squares(START, clean, backend=backend, max_steps=2)
+    assert short.result == "nonlinear_max_steps_reached", short.result
+    assert bool(short.outcome == optx.RESULTS.nonlinear_max_steps_reached) and not short.success
+    assert optim.fit.outcome_name(optx.RESULTS.nonfinite) == "nonfinite"
+
+
+def test_optim_fit_exposes_every_old_name():
+    import subprocess
+    import sys
+
+    import pmetric
+
+    old_optim = ["FitResult", "expressible_rows", "fit_least_squares", "fitted_fields", "ChainTooShortWarning",
+                 "LogUniform", "Normal", "Posterior", "Uniform", "conservative", "fit_mcmc"]
+    for name in old_optim:
+        assert getattr(optim, name) is getattr(optim.fit, name), name
+    for name in ["CalibrationData", "SimulatedObserver", "Stimuli", "stimulus_grid", "fade_in_session",
+                 "staircase_2afc", "RULES"]:
+        assert hasattr(optim.fit, name), name
+    assert not hasattr(pmetric, "CalibrationData")
+    # data flows pmetric <- optim: importing pmetric loads no optim module
+    code = "import sys, pmetric; print(sorted(m for m in sys.modules if m.split('.')[0] == 'optim'))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_user_input_errors_are_plod_errors(clean, tmp_path):
+    from pmetric import PlodError
+
+    with pytest.raises(PlodError, match="unknown solver"):
+        optim.fit_least_squares(START, clean, solver="newton")
+    with pytest.raises(PlodError, match="outside its param_bounds"):
+        optim.fit_least_squares(ToyCSF(drop=-0.5), clean)
+    with pytest.raises(PlodError, match="not a number"):
+        CalibrationData.from_csv_text("s_frequency,log_cone_contrast\n1,abc\n")

@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from test_fit import TRUE, ToyCSF, simulate  # noqa: E402  (the small model shared with test_fit)
 
 import optim  # noqa: E402
-from optim import _fit, _mcmc  # noqa: E402
+from optim.fit import _mcmc, _problem  # noqa: E402
 
 START = ToyCSF(gain=80.0, f_peak=6.0, width=2.0, drop=0.06)
 NAMES = ["gain", "f_peak", "width", "drop"]
@@ -47,14 +47,14 @@ def test_log_probability_matches_numpy():
     data = simulate(seed=5, n=60, noise=0.05)
     priors = {"gain": optim.LogUniform(1.0, 1e4), "f_peak": optim.Uniform(0.5, 20.0), "width": optim.Normal(1.0, 0.5)}
     with jax.enable_x64(True):
-        prob = _fit._Problem(START, data)
+        prob = _problem.Problem(START, data)
         theta = prob.theta0 + 0.1
         logpost, ndim = _mcmc._build_logpost(prob, {k: v for k, v in priors.items()}, 0.07, prob.theta0, 10.0)
         got = float(logpost(jnp.asarray(theta)))
         assert ndim == 4
-        fixed, arrays = _fit._device_args(prob)
-        r = np.asarray(_fit._residuals(jnp.asarray(theta), fixed, arrays, prob.static))
-    x = _fit._natural_values(prob, theta)
+        fixed, arrays = _problem.device_args(prob)
+        r = np.asarray(_problem.residuals(jnp.asarray(theta), fixed, arrays, prob.static))
+    x = _problem.natural_values(prob, theta)
     n = r.size
     ll = -0.5 * np.sum(r**2) / 0.07**2 - n * math.log(0.07) - 0.5 * n * math.log(2 * math.pi)
     gain, f_peak, width, _ = x
@@ -107,3 +107,21 @@ def test_bad_arguments():
         optim.fit_mcmc(START, data, nsteps=10, burn=10)
     with pytest.raises(ValueError, match="q must be"):
         optim.conservative(None, q=1.5)
+
+
+def test_progress_callback_is_monotone_and_nothing_is_printed(capsys):
+    from pmetric import PlodError
+
+    data = simulate(seed=2, n=100, noise=0.05)  # the problem of test_short_chain: compiled once
+    calls = []
+    _quiet(optim.fit_mcmc, START, data, nwalkers=16, nsteps=120, seed=0,
+           progress=lambda stage, done, total: calls.append((stage, done, total)))
+    assert [c[0] for c in calls][0] == "least squares" and calls[-1] == ("sampling", 120, 120)
+    for stage in ("least squares", "sampling"):
+        seen = [(d, t) for s, d, t in calls if s == stage]
+        assert len({t for _, t in seen}) == 1 and seen[-1][0] == seen[-1][1]
+        assert all(a[0] <= b[0] for a, b in zip(seen, seen[1:])), seen
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
+    with pytest.raises(PlodError, match="progress must be"):
+        optim.fit_mcmc(START, data, nwalkers=16, nsteps=10, progress="yes")

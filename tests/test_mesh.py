@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 import optim
+import optim._mesh
+import pmetric
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "meshes"
 
@@ -129,6 +131,27 @@ def test_validate_colours():
         optim.validate_mesh(TET_V, TET_F, np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"\[0, 1\]"):
         optim.validate_mesh(TET_V, TET_F, np.full((4, 3), 2.0))
+
+
+def test_validate_returns_one_named_type():
+    """validate_mesh always returns a ValidatedMesh (4 fields, unpacks as before); build_tree's face
+    normals come from a separate function, not from a hidden flag."""
+    from optim._mesh import validated_mesh_and_normals
+
+    out = optim.validate_mesh(TET_V, TET_F, name="tet")
+    assert isinstance(out, optim.ValidatedMesh) and len(out) == 4
+    assert out.report.faces_in == 4 and out.colors is None and out.faces.dtype == np.int32
+    with pytest.raises(TypeError):
+        optim.validate_mesh(TET_V, TET_F, _normals=True)
+    mesh, normals = validated_mesh_and_normals(TET_V, TET_F)
+    np.testing.assert_array_equal(mesh.faces, out.faces)
+    np.testing.assert_array_equal(normals, optim._mesh.face_normals(out.vertices, out.faces))
+    with pytest.raises(pmetric.PlodError, match="out of range"):
+        optim.validate_mesh(TET_V, [[0, 1, 9]])
+
+
+def test_bumpy_torus_is_exported():
+    assert "bumpy_torus" in optim._shapes.__all__
 
 
 # ---------------------------------------------------------------------------------------------- files

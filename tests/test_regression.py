@@ -119,7 +119,7 @@ def _fit_values(out: dict) -> None:
     with jax.enable_x64(True):
         ls = np.log10(np.asarray(truth.stimulus_sensitivity(fq, e), np.float64))
     ls = ls + 0.02 * rng.standard_normal(n) + np.log10([0.8, 1.0, 1.25])[np.arange(n) % 3]
-    data = pm.CalibrationData.from_arrays(fq, log_threshold=-ls, e=e, dataset=ds, luminance=50.0, area=2.0)
+    data = optim.fit.CalibrationData.from_arrays(fq, log_threshold=-ls, e=e, dataset=ds, luminance=50.0, area=2.0)
     start = pm.KellyAbstract()
     for backend in ("optimistix", "jaxopt"):
         res = optim.fit_least_squares(start, data, multipliers=True, backend=backend)

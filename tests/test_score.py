@@ -114,7 +114,7 @@ def test_eccentricity_matches_reference_and_clamps_at_zero(sphere_tree):
     assert t.eccentricity[nodes] == pytest.approx(ecc, rel=1e-3, abs=2e-3)
     assert (t.eccentricity[nodes] == 0).any() and (t.eccentricity[nodes] > 1).any()
     assert (t.eccentricity >= 0).all()
-    # several viewers: the minimum eccentricity (seed 004 section 8.4)
+    # several viewers: the minimum eccentricity [LH01 §8.4]
     g2 = np.array([[1200.0, 700.0]])
     both = node_terms(tree, View(eye=EYE, gaze=np.concatenate([gaze, g2]))).eccentricity
     other = node_terms(tree, View(eye=EYE, gaze=g2)).eccentricity
@@ -226,7 +226,7 @@ def test_imperceptible_cut(sphere_tree):
     assert (k[boundary] <= 1).all()
     assert near.distance <= 1.0
     assert tracked.triangles <= head.triangles <= near.triangles
-    # eccentricity only ever lowers a key (seed 001 section 4.4), and does for peripheral nodes
+    # eccentricity only ever lowers a key [LHNW00 §4.4], and does for peripheral nodes
     foveal = score(tree, View(eye=EYE, gaze=None), model, exact=True)
     corner = score(tree, View(eye=EYE, gaze=[[0.0, 0.0]]), model, exact=True)
     assert (corner <= foveal * (1 + 1e-5) + 1e-6).all()
@@ -250,37 +250,64 @@ def test_bad_input(sphere_tree):
 def test_fast_table_path_equals_xla_path(sphere_tree, gaze):
     """The numpy-gather fast path of the table-mode keys gives identical raw keys and cull flags."""
     from optim import _score as S
+    from optim._terms import view_params
 
     tree = sphere_tree
-    ctx = S.scoring_context(tree)
+    ctx = optim.scoring_context(tree)
     ktab = S._model_table(S.default_model())
     for az in np.linspace(0, 2 * math.pi, 5, endpoint=False):
         eye = 3.0 * np.array([math.sin(az), 0.4, math.cos(az)])
-        vp = S._view_params(View(eye=eye, gaze=gaze), ctx)
-        fast = S._key_kernel(ctx, vp, S._table_device(), None, ktab, "perceptual", gaze is not None, False, fast=True)
-        slow = S._key_kernel(ctx, vp, S._table_device(), None, ktab, "perceptual", gaze is not None, False, fast=False)
+        vp = view_params(View(eye=eye, gaze=gaze), ctx.scene_lum)
+        fast = S._raw_keys(ctx, vp, None, ktab, "perceptual", gaze is not None, False, fast=True)
+        slow = S._raw_keys(ctx, vp, None, ktab, "perceptual", gaze is not None, False, fast=False)
         assert np.array_equal(fast[0], slow[0]) and np.array_equal(fast[1], slow[1])
 
 
 def test_monotone_gathers_equal_reduceat(sphere_tree):
-    from optim import _score as S
-
-    tp = S.scoring_context(sphere_tree).passes
+    lv = optim.scoring_context(sphere_tree).levels
     rng = np.random.default_rng(0)
     for _ in range(5):
-        key = rng.random(len(tp.node)).astype(np.float32)
+        key = rng.random(len(lv.parent)).astype(np.float32)
         key[rng.random(key.size) < 0.4] = 0.0
-        assert np.array_equal(tp.monotone(key.copy()), tp.monotone_reduceat(key.copy()))
+        assert np.array_equal(lv.max_up(key.copy()), lv.reduce_up(key.copy(), np.maximum, include_self=True))
 
 
 def test_padded_chunks_give_the_same_keys(sphere_tree, monkeypatch):
     """Several chunks of odd lengths (padded internally) give the keys of a single chunk."""
-    from optim import _score as S
+    from optim import _context as C
 
     view = View(eye=EYE)
     want = score(sphere_tree, view)
     tree = optim.build_tree(sphere_tree.vertices, sphere_tree.faces, method="octree")
-    monkeypatch.setattr(S, "_CHUNK", 77)
+    monkeypatch.setattr(C, "_CHUNK", 77)
     got = score(tree, view)
-    assert len(S.scoring_context(tree).chunks) > 1
+    assert len(optim.scoring_context(tree).chunks) > 1
     assert np.array_equal(got, want)
+
+
+def test_scoring_context_is_cached_and_immutable(sphere_tree):
+    ctx = optim.scoring_context(sphere_tree)
+    assert optim.scoring_context(sphere_tree) is ctx
+    assert sphere_tree.derived("scoring_context", lambda: None) is ctx
+    with pytest.raises(AttributeError):
+        ctx.chunks = ()
+
+
+def test_score_errors_are_plod_errors(sphere_tree):
+    with pytest.raises(pmetric.PlodError, match="metric must be one of"):
+        score(sphere_tree, View(eye=EYE), metric="loudness")
+    with pytest.raises(pmetric.PlodError, match="optim.View"):
+        score(sphere_tree, (0, 0, 4))
+
+
+def test_silhouette_choice_is_one_function():
+    """select_contrast picks the silhouette value exactly where the node is a silhouette (numpy and jax)."""
+    import jax.numpy as jnp
+
+    from optim._terms import select_contrast
+
+    sil = np.array([True, False, True])
+    own, other = np.array([1.0, 2.0, 3.0]), np.array([10.0, 20.0, 30.0])
+    assert np.array_equal(select_contrast(sil, own, other, np), [10.0, 2.0, 30.0])
+    assert np.array_equal(np.asarray(select_contrast(jnp.asarray(sil), jnp.asarray(own), jnp.asarray(other))),
+                          [10.0, 2.0, 30.0])

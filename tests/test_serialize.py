@@ -166,7 +166,47 @@ def test_register_model(tmp_path):
         m2 = load_model(save_model(Scaled(jnp.asarray(3.0)), tmp_path / "s.json"))
         assert float(m2.sensitivity(2.0)) == 3.0
     finally:
-        pmetric._serialize._EXTRA.pop("Scaled", None)
+        pmetric._registry._EXTRA.pop("Scaled", None)
     assert "Scaled" not in pmetric.model_registry()
     with pytest.raises(ValueError, match="not an equinox.Module"):
         pmetric.register_model(int)
+
+
+@pytest.mark.parametrize("value, msg", [
+    (float("nan"), "must be >= 1e-06, got nan"),
+    (-3.0, "must be >= 1e-06, got -3.0"),
+    (0.0, "must be >= 1e-06, got 0.0"),
+    (1e40, "must fit in float32, got 1e[+]40"),
+    (float("inf"), "must be >= 1e-06, got inf"),
+])
+def test_load_rejects_bad_constants(tmp_path, value, msg):
+    """A constant that is NaN, infinite, outside param_bounds or outside its dtype fails to load, naming
+    the file and the field (a KellyAbstract with such a delta would make every fold imperceptible)."""
+    doc = json.loads(save_model(pmetric.KellyAbstract(), tmp_path / "good.json").read_text())
+    doc["model"]["fields"]["delta"]["data"] = value
+    p = tmp_path / "m.json"
+    p.write_text(json.dumps(doc))  # json writes NaN / Infinity literals, as a hand-edited file might
+    with pytest.raises(pmetric.PlodError, match=f"m.json: KellyAbstract.delta {msg}"):
+        load_model(p)
+
+
+def test_load_checks_nested_and_unbounded_constants(tmp_path):
+    doc = json.loads(save_model(pmetric.Eccentric(pmetric.ManosSakrison()), tmp_path / "e.json").read_text())
+    doc["model"]["fields"]["magnification"]["fields"]["k1"]["data"] = -1.0
+    with pytest.raises(pmetric.PlodError, match=r"bad.json: RovamoVirsu.k1 must be >= 0, got -1.0"):
+        load_model(_write(tmp_path, doc))
+    m = CalibratedCSF([1.0, 4.0], [0.0], np.array([[-2.0], [-1.0]]))
+    doc = json.loads(save_model(m, tmp_path / "t.json").read_text())
+    doc["model"]["fields"]["log_thresholds"]["data"][1][0] = float("nan")
+    with pytest.raises(pmetric.PlodError, match="CalibratedCSF.log_thresholds must be finite, got nan"):
+        load_model(_write(tmp_path, doc))
+
+
+def test_save_refuses_non_finite_constants(tmp_path):
+    bad = pmetric.KellyAbstract()
+    object.__setattr__(bad, "delta", jnp.asarray(np.nan, jnp.float32))  # what a diverged fit could hold
+    with pytest.raises(pmetric.PlodError, match="save_model: KellyAbstract.delta must be finite, got nan"):
+        save_model(bad, tmp_path / "bad.json")
+    assert not (tmp_path / "bad.json").exists()
+    good = save_model(pmetric.KellyAbstract(), tmp_path / "good.json").read_text()
+    assert "NaN" not in good and "Infinity" not in good

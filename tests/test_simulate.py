@@ -1,4 +1,4 @@
-"""Tests of pmetric._simulate (fade-in method of adjustment, 2AFC staircase) and `plod calibrate`."""
+"""Tests of optim.fit._simulate (fade-in method of adjustment, 2AFC staircase) and `plod calibrate`."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from scipy.special import ndtri
 
 import pmetric
 from experiments.cli import main
-from pmetric._simulate import RULES, SimulatedObserver, Stimuli, fade_in_session, staircase_2afc, stimulus_grid
+from optim.fit import RULES, CalibrationData, SimulatedObserver, Stimuli, fade_in_session, staircase_2afc, stimulus_grid
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +131,7 @@ def test_cli_calibrate_writes_csv(tmp_path, capsys):
     rc = main(["calibrate", "--simulate", "--model", "barten", "--noise", "0", "--grid", "1,2,4,8x0,5x0,2",
                "--observer-seed", "4", "--out", str(out)])
     assert rc == 0, capsys.readouterr().err
-    d = pmetric.CalibrationData.from_csv(out)
+    d = CalibrationData.from_csv(out)
     assert len(d) == 16
     obs = SimulatedObserver(pmetric.Barten(), slope=math.inf)
     np.testing.assert_allclose(d.log_threshold, _true(obs, d), atol=1e-9)
@@ -142,7 +142,7 @@ def test_cli_calibrate_writes_csv(tmp_path, capsys):
         assert main(["calibrate", "--simulate", "--model", "Barten", "--method", "staircase", "--trials", "40",
                      "--grid", "2,4x0", "--noise", "0.2", "--observer-seed", "9", "--out", str(o)]) == 0
     assert out2.read_text() == out3.read_text()
-    assert set(pmetric.CalibrationData.from_csv(out2).dataset) == {"simulated_2afc"}
+    assert set(CalibrationData.from_csv(out2).dataset) == {"simulated_2afc"}
 
 
 def test_cli_errors(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""Tests for pmetric.CalibratedCSF (the calibrated threshold lookup table of seed 004 section 6.1)."""
+"""Tests for pmetric.CalibratedCSF (the calibrated threshold lookup table [LH01 §6.1])."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import pmetric
-from pmetric import CalibratedCSF, CalibrationData
+from optim.fit import CalibrationData
+from pmetric import CalibratedCSF
 
 FREQS = [1.0, 2.0, 4.0, 8.0, 16.0]
 ECCS = [0.0, 10.0]
@@ -198,7 +199,7 @@ def test_from_data_bins_and_averages(tmp_path):
     np.testing.assert_allclose(CalibratedCSF.from_data(d2).log_thresholds[:, 0], [-1.75, -1.5])
     # CSV path
     d.to_csv(tmp_path / "cal.csv")
-    m3 = CalibratedCSF.from_csv(tmp_path / "cal.csv", freqs=FREQS, eccs=ECCS)
+    m3 = CalibratedCSF.from_data(CalibrationData.from_csv(tmp_path / "cal.csv"), freqs=FREQS, eccs=ECCS)
     np.testing.assert_allclose(m3.log_thresholds, TABLE, atol=1e-6)
 
 

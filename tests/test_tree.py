@@ -1,13 +1,16 @@
-"""The vertex tree (optim/_tree.py, _octree.py, _qem.py) against slow brute-force references."""
+"""The vertex tree (optim/_tree.py, _build.py, _levels.py, _octree.py, _qem.py) against slow brute-force references."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import optim
+import optim._build
+import pmetric
 from optim._octree import morton_codes, octree_parents
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "meshes"
@@ -285,12 +288,76 @@ def test_qem_proxies_on_a_flat_grid_are_centroids(trees):
         np.testing.assert_allclose(t.position[n], v[sup[n]].mean(0), atol=1e-6)
 
 
-def test_progress_flag_builds_the_same_tree():
+def test_progress_callback_builds_the_same_tree(capsys):
     v, f = optim.icosphere(1)
-    a = optim.build_tree(v, f, method="octree", progress=True)
+    calls = []
+    a = optim.build_tree(v, f, method="octree", progress=lambda stage, done, total: calls.append((stage, done, total)))
     b = optim.build_tree(v, f, method="octree")
     np.testing.assert_array_equal(a.parent, b.parent)
     np.testing.assert_array_equal(a.tri_node, b.tri_node)
+    done = [d for _, d, _ in calls]
+    assert done == sorted(done) and done[0] == 0 and calls[-1] == ("done", 5, 5)
+    assert {t for _, _, t in calls} == {5}
+    assert [s for s, _, _ in calls[:-1]] == list(optim._build.BUILD_STAGES)
+    assert capsys.readouterr() == ("", "")  # the library prints nothing
+    with pytest.raises(pmetric.PlodError, match="progress must be"):
+        optim.build_tree(v, f, method="octree", progress=True)
+
+
+def test_rich_progress_renders_the_build_callback():
+    import io
+
+    from rich.console import Console
+
+    from experiments._progress import call_with_progress, rich_progress
+
+    v, f = optim.icosphere(1)
+    buf = io.StringIO()
+    with rich_progress("build", console=Console(file=buf, force_terminal=True), transient=False) as cb:
+        assert callable(cb)
+        t = optim.build_tree(v, f, method="octree", progress=cb)
+    assert "build" in buf.getvalue() and t.n_vertices == len(v)
+    with rich_progress(enabled=False) as cb:
+        assert cb is None
+    t2 = call_with_progress(optim.build_tree, v, f, method="octree", progress=False)
+    np.testing.assert_array_equal(t2.parent, t.parent)
+
+
+def test_tree_is_immutable():
+    v, f = optim.icosphere(1)
+    t = optim.build_tree(v, f, method="octree")
+    assert t.method == "octree"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.method = "qem"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.radius = t.radius * 2
+    for name in ("parent", "radius", "normal_mask", "vertices", "faces"):
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(t, name)[0] = 0
+    with pytest.raises(ValueError, match="read-only"):
+        t.internal[0] = 1
+    assert v.flags.writeable  # the caller's arrays are left writable
+
+
+def test_derived_cache_returns_the_same_object():
+    v, f = optim.icosphere(1)
+    t = optim.build_tree(v, f, method="octree")
+    calls = []
+    first = t.derived("test.thing", lambda: calls.append(1) or object())
+    assert t.derived("test.thing", lambda: calls.append(1) or object()) is first and calls == [1]
+    assert t.internal is t.internal and t.levels is t.levels and t.level_start is t.level_start
+    np.testing.assert_array_equal(t.level_start, np.searchsorted(t.depth, np.arange(int(t.depth[-1]) + 2)))
+    cut = optim.budget_cut(t, optim.repair_monotone(t, t.radius), 10)
+    optim.extract(t, cut)
+    assert {"cut.internal_parent_pos", "cut.extract_index_fast"} <= set(t._derived)
+
+
+def test_tree_build_errors_are_plod_errors():
+    v, f = optim.icosphere(1)
+    with pytest.raises(pmetric.PlodError, match="method must be one of"):
+        optim.build_tree(v, f, method="kmeans")
+    with pytest.raises(pmetric.PlodError, match="direction"):
+        optim.Lighting(direction=(0, 0, 0))
 
 
 @pytest.mark.parametrize("method", ["octree", "qem"])

@@ -35,7 +35,7 @@ def test_default_display_geometry():
     d = pmetric.Display.default()
     v = View(eye=(0, 0, 5))
     assert (v.width, v.height) == d.resolution
-    # the image spans the screen: its left edge is 23 deg from the centre (46 deg screen, seed 004)
+    # the image spans the screen: its left edge is 23 deg from the centre (46 deg screen [LH01 §6.2])
     assert v.visual_angle_px([0, 540], [960, 540]) == pytest.approx(23.0, abs=1e-6)
     # default camera field of view = what the screen subtends vertically
     h_deg = math.degrees(2 * math.atan(float(d.height) / (2 * float(d.distance))))

@@ -1,16 +1,20 @@
 """Bayesian fitting of CSF constants with emcee, and the conservative model for imperceptible LOD.
 
-Likelihood: the residuals of ``optim._fit`` (log10 sensitivity, model - data, optional per-dataset
-multipliers) are independent Gaussians of standard deviation ``sigma`` (log10 units; free, with a prior
-flat in ln sigma on [1e-4, 10], unless given). Parameters are sampled in the unconstrained coordinates
-of ``optim._fit`` (log / logit by ``param_bounds``); priors are densities of the *natural* values, so
-the log-Jacobian of the reparametrisation is added. The ensemble sampler is the affine-invariant
-stretch move of Goodman & Weare (2010) as implemented by emcee (Foreman-Mackey et al. 2013, PASP 125:306)
-with a jitted, vmapped log-probability (``vectorize=True``: one call per half-ensemble).
+Likelihood: the residuals of ``optim.fit._problem`` (log10 sensitivity, model - data, optional
+per-dataset multipliers) are independent Gaussians of standard deviation ``sigma`` (log10 units; free,
+with a prior flat in ln sigma on [1e-4, 10], unless given). Parameters are sampled in the unconstrained
+coordinates of the problem (log / logit by ``param_bounds``); priors are densities of the *natural*
+values, so the log-Jacobian of the reparametrisation is added. The ensemble sampler is the
+affine-invariant stretch move [GW10] as implemented by emcee [FM13] with a jitted, vmapped
+log-probability (``vectorize=True``: one call per half-ensemble).
 
-Convergence: the integrated autocorrelation time tau of every parameter (emcee's estimator, Sokal 1997)
+Convergence: the integrated autocorrelation time tau of every parameter (emcee's estimator, [Sok97])
 must satisfy ``nsteps >= 50 tau``; otherwise a ``ChainTooShortWarning`` is issued and
 ``Posterior.converged`` is False.
+
+Progress: ``fit_mcmc(progress=callback)`` calls ``callback(stage, done, total)`` with ``stage`` one of
+``"least squares"`` and ``"sampling"`` (steps done of ``nsteps``); ``done`` never decreases within a
+stage. The library prints nothing; ``experiments`` renders the callback.
 """
 
 from __future__ import annotations
@@ -18,85 +22,31 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._fit import (
-    _device_args,
-    _from_u,
-    _param_names,
-    _Problem,
-    _residuals,
-    fit_least_squares,
-)
+from pmetric import PlodError
 
-__all__ = ["ChainTooShortWarning", "LogUniform", "Normal", "Posterior", "Uniform", "conservative", "fit_mcmc"]
+from ._data import CalibrationData
+from ._least_squares import fit_least_squares
+from ._priors import as_prior
+from ._problem import Problem, device_args, from_u, log10_multipliers, param_names, predict_log10, residuals
+
+__all__ = ["ChainTooShortWarning", "Posterior", "conservative", "fit_mcmc"]
 
 _SIGMA_RANGE = (1e-4, 10.0)  # prior range of the noise s.d., log10 units
 _AUTOCORR_FACTOR = 50  # emcee's recommendation: nsteps >= 50 tau
+_PROGRESS_EVERY = 50  # sampling steps between progress calls
+
+Progress = Callable[[str, int, int], None]
 
 
 class ChainTooShortWarning(RuntimeWarning):
     """The chain is shorter than 50 integrated autocorrelation times: estimates are unreliable."""
-
-
-# ----------------------------------------------------------------------------- priors
-class Uniform(eqx.Module):
-    """Flat density on [lo, hi] (natural units of the constant)."""
-
-    lo: float
-    hi: float
-
-    def __check_init__(self):
-        if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.hi > self.lo):
-            raise ValueError(f"Uniform prior needs finite lo < hi, got ({self.lo}, {self.hi})")
-
-    def log_prob(self, x):
-        inside = (x >= self.lo) & (x <= self.hi)
-        return jnp.where(inside, -math.log(self.hi - self.lo), -jnp.inf)
-
-
-class LogUniform(eqx.Module):
-    """Density proportional to 1/x on [lo, hi], 0 < lo < hi (flat in log x)."""
-
-    lo: float
-    hi: float
-
-    def __check_init__(self):
-        if not (math.isfinite(self.hi) and 0 < self.lo < self.hi):
-            raise ValueError(f"LogUniform prior needs 0 < lo < hi, got ({self.lo}, {self.hi})")
-
-    def log_prob(self, x):
-        inside = (x >= self.lo) & (x <= self.hi)
-        xs = jnp.where(inside, x, 1.0)
-        return jnp.where(inside, -jnp.log(xs) - math.log(math.log(self.hi / self.lo)), -jnp.inf)
-
-
-class Normal(eqx.Module):
-    """Gaussian density N(mean, sd^2) (natural units)."""
-
-    mean: float
-    sd: float
-
-    def __check_init__(self):
-        if not (math.isfinite(self.mean) and math.isfinite(self.sd) and self.sd > 0):
-            raise ValueError(f"Normal prior needs a finite mean and sd > 0, got ({self.mean}, {self.sd})")
-
-    def log_prob(self, x):
-        z = (x - self.mean) / self.sd
-        return -0.5 * z * z - math.log(self.sd * math.sqrt(2 * math.pi))
-
-
-def _as_prior(name, p):
-    if isinstance(p, (Uniform, LogUniform, Normal)):
-        return p
-    if isinstance(p, (tuple, list)) and len(p) == 2:
-        return Uniform(float(p[0]), float(p[1]))
-    raise ValueError(f"prior for {name!r} must be Uniform, LogUniform, Normal or a (lo, hi) tuple, got {p!r}")
 
 
 # ----------------------------------------------------------------------------- posterior
@@ -137,7 +87,7 @@ class Posterior:
     def interval(self, q: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
         """Central ``q`` credible interval of every parameter: (lo (p,), hi (p,))."""
         if not 0 < q < 1:
-            raise ValueError(f"q must be in (0, 1), got {q}")
+            raise PlodError(f"q must be in (0, 1), got {q}")
         a = (1 - q) / 2
         return np.quantile(self.samples, a, axis=0), np.quantile(self.samples, 1 - a, axis=0)
 
@@ -160,7 +110,7 @@ class Posterior:
         idx = rng.choice(len(self._theta), size=min(n, len(self._theta)), replace=False)
         prob = self._problem
         with jax.enable_x64(True):
-            fixed, arrays = _device_args(prob)
+            fixed, arrays = device_args(prob)
             return np.asarray(_log10_batch(jnp.asarray(self._theta[idx]), fixed, arrays, prob.static))
 
     def summary(self) -> str:
@@ -175,12 +125,10 @@ class Posterior:
         return "\n".join(lines)
 
 
-def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
-    """Log posterior of one coordinate vector x = (theta, [ln sigma]) (see the module docstring)."""
-    n = arrays["y"].shape[0]
-    ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
-    theta = x[: st.n_free]
-    lp = jnp.zeros((), x.dtype)
+# ----------------------------------------------------------------------------- log posterior (traced)
+def _log_prior(theta, theta_ref, st, per_leaf, box):
+    """Log prior of the unconstrained vector ``theta`` (natural-value priors plus the log-Jacobian)."""
+    lp = jnp.zeros((), theta.dtype)
     off = 0
     for leaf, prior in zip(st.spec, per_leaf):
         u = theta[off:off + leaf.size]
@@ -189,7 +137,7 @@ def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
             ref = theta_ref[off:off + leaf.size]
             lp = lp + jnp.sum(jnp.where(jnp.abs(u - ref) <= box, 0.0, -jnp.inf))
         else:
-            val, dxdu = _from_u(u, leaf)
+            val, dxdu = from_u(u, leaf)
             adx = jnp.abs(dxdu)
             ok = adx > 0
             logjac = jnp.where(ok, jnp.log(jnp.where(ok, adx, 1.0)), -jnp.inf)
@@ -198,7 +146,16 @@ def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
     if st.n_free > st.n_model:  # multipliers: flat in log10 m within +-box
         w = theta[st.n_model:]
         lp = lp + jnp.sum(jnp.where(jnp.abs(w) <= box, 0.0, -jnp.inf))
-    r = _residuals(theta, fixed, arrays, st)
+    return lp
+
+
+def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
+    """Log posterior of one coordinate vector x = (theta, [ln sigma]) (see the module docstring)."""
+    n = arrays["y"].shape[0]
+    ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
+    theta = x[: st.n_free]
+    lp = _log_prior(theta, theta_ref, st, per_leaf, box)
+    r = residuals(theta, fixed, arrays, st)
     if sigma is None:
         ln_s = x[st.n_free]
         lp = lp + jnp.where((ln_s >= ln_lo) & (ln_s <= ln_hi), 0.0, -jnp.inf)
@@ -218,14 +175,36 @@ def _logpost_batch(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
 
 @eqx.filter_jit
 def _jacobian(theta, fixed, arrays, st):
-    return jax.jacfwd(lambda th: _residuals(th, fixed, arrays, st))(theta)
+    return jax.jacfwd(lambda th: residuals(th, fixed, arrays, st))(theta)
 
 
-def _build_logpost(prob: _Problem, priors: Mapping[str, Any], sigma: float | None, theta_ref: np.ndarray,
+@eqx.filter_jit
+def _natural_batch(thetas, st):
+    """Natural values of a batch of unconstrained vectors: (n, p_free) -> (n, p_natural)."""
+
+    def one(theta):
+        out, off = [], 0
+        for s in st.spec:
+            x, _ = from_u(theta[off:off + s.size], s)
+            out.append(x)
+            off += s.size
+        if st.multipliers:
+            out.append(log10_multipliers(theta, st))
+        return jnp.concatenate(out)
+
+    return jax.vmap(one)(thetas)
+
+
+@eqx.filter_jit
+def _log10_batch(thetas, fixed, arrays, st):
+    return jax.vmap(lambda th: predict_log10(th, fixed, arrays, st))(thetas)
+
+
+def _build_logpost(prob: Problem, priors: Mapping[str, Any], sigma: float | None, theta_ref: np.ndarray,
                    box: float, *, batched: bool = False):
     """Return (log posterior of one coordinate vector -- or of a batch with ``batched`` --, dimension)."""
     st = prob.static
-    fixed, arrays = _device_args(prob)
+    fixed, arrays = device_args(prob)
     per_leaf = tuple(priors.get(leaf.name, priors.get(leaf.field)) for leaf in st.spec)
     args = (jnp.asarray(theta_ref), fixed, arrays, st, per_leaf, None if sigma is None else float(sigma),
             float(box))
@@ -233,6 +212,86 @@ def _build_logpost(prob: _Problem, priors: Mapping[str, Any], sigma: float | Non
     if batched:
         return (lambda x: _logpost_batch(x, *args)), ndim
     return (lambda x: _logpost_one(x, *args)), ndim
+
+
+# ----------------------------------------------------------------------------- fit_mcmc, by stage
+def _check_mcmc_args(nwalkers, nsteps, burn, thin, sigma, box, progress) -> int:
+    """Validate the sampler settings; returns the burn-in."""
+    if not isinstance(nwalkers, int) or not isinstance(nsteps, int) or nsteps < 1:
+        raise PlodError(f"nwalkers and nsteps must be positive ints, got {nwalkers!r}, {nsteps!r}")
+    burn = nsteps // 4 if burn is None else int(burn)
+    if not 0 <= burn < nsteps:
+        raise PlodError(f"burn must be in [0, nsteps), got {burn}")
+    if thin < 1:
+        raise PlodError(f"thin must be >= 1, got {thin}")
+    if sigma is not None and not (sigma > 0 and math.isfinite(sigma)):
+        raise PlodError(f"sigma must be > 0 (log10 units), got {sigma}")
+    if box <= 0:
+        raise PlodError(f"box must be > 0, got {box}")
+    if progress is not None and progress is not False and not callable(progress):
+        raise PlodError(f"progress must be None or a callable progress(stage, done, total), got {progress!r}")
+    return burn
+
+
+def _check_priors(priors: dict, prob: Problem, names: list[str]) -> dict:
+    spec = prob.static.spec
+    known = set(names) | {leaf.field for leaf in spec} | {leaf.name for leaf in spec}
+    unknown = [k for k in priors if k not in known]
+    if unknown:
+        raise PlodError(f"priors name unknown or unfitted fields {unknown}; fitted: {[leaf.name for leaf in spec]}")
+    return {k: as_prior(k, p) for k, p in priors.items()}
+
+
+def _start_ball(prob: Problem, lsq, sigma, vlogpost, ndim: int, nwalkers: int, seed: int) -> np.ndarray:
+    """Walkers in a small ball around the least-squares optimum, scaled by its standard errors in u."""
+    if nwalkers < 2 * ndim or nwalkers % 2:
+        raise PlodError(f"nwalkers must be even and >= 2 x {ndim} (the dimension), got {nwalkers}")
+    theta_hat = np.asarray(lsq.theta, np.float64)
+    fixed, arrays = device_args(prob)
+    r_hat = np.asarray(lsq.residuals) * prob.arrays["sw"]
+    jac = np.asarray(_jacobian(jnp.asarray(theta_hat), fixed, arrays, prob.static))
+    s2 = float(np.sum(r_hat ** 2) / max(len(r_hat) - len(theta_hat), 1))
+    cov_u = np.linalg.pinv(jac.T @ jac, hermitian=True) * s2
+    sd_u = np.sqrt(np.clip(np.diag(cov_u), 1e-16, None))
+    rng = np.random.default_rng(seed)
+    centre = theta_hat if sigma is not None else np.append(theta_hat, 0.5 * math.log(max(s2, 1e-8)))
+    spread = sd_u if sigma is not None else np.append(sd_u, 0.05)
+    p0 = centre + 0.5 * spread * rng.standard_normal((nwalkers, ndim))
+    if not np.isfinite(np.asarray(vlogpost(jnp.asarray(p0)))).all():
+        raise PlodError("the starting ball has walkers outside the prior support; widen the priors "
+                        "or start the model inside them")
+    return p0
+
+
+def _sample(vlogpost, p0: np.ndarray, nsteps: int, seed: int, progress: Progress | None):
+    """Run emcee's ensemble sampler from ``p0``; returns the sampler."""
+    import emcee
+
+    nwalkers, ndim = p0.shape
+
+    def log_prob(x):
+        return np.asarray(vlogpost(jnp.asarray(x)))
+
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
+    sampler.random_state = np.random.RandomState(seed).get_state()
+    if progress is None:
+        sampler.run_mcmc(p0, nsteps)
+        return sampler
+    progress("sampling", 0, nsteps)
+    for i, _ in enumerate(sampler.sample(p0, iterations=nsteps)):
+        done = i + 1
+        if done % _PROGRESS_EVERY == 0 or done == nsteps:
+            progress("sampling", done, nsteps)
+    return sampler
+
+
+def _convergence(tau: np.ndarray, nsteps: int) -> tuple[bool, str | None]:
+    tau_max = float(np.max(tau))
+    converged = bool(np.isfinite(tau_max) and nsteps >= _AUTOCORR_FACTOR * tau_max)
+    if converged:
+        return True, None
+    return False, (f"chain too short: {nsteps} steps < {_AUTOCORR_FACTOR} x the largest integrated "
+                   f"autocorrelation time ({tau_max:.1f} steps); run >= {int(math.ceil(50 * tau_max))} steps")
 
 
 def fit_mcmc(
@@ -250,14 +309,14 @@ def fit_mcmc(
     rows="auto",
     seed: int = 0,
     box: float = 10.0,
-    progress: bool = False,
+    progress: Progress | None = None,
 ) -> Posterior:
     """Sample the posterior of ``model``'s constants given thresholds ``data`` with emcee.
 
     Args:
         model: a ``pmetric.CSFModel`` (starting point; a least-squares fit is run first and the walkers
             start in a small ball around it, scaled by its standard errors).
-        data: ``pmetric.CalibrationData``.
+        data: ``optim.fit.CalibrationData``.
         priors: {field name: ``Uniform(lo, hi)`` | ``LogUniform(lo, hi)`` | ``Normal(mean, sd)`` | (lo, hi)}
             on natural values (array fields: elementwise). Fields without a prior get a flat prior on
             the unconstrained coordinate (log / logit) within ``box`` of the least-squares value.
@@ -265,70 +324,28 @@ def fit_mcmc(
         burn: steps discarded (default nsteps // 4). thin: keep every ``thin``-th step.
         sigma: fixed noise s.d. in log10 units (default: sampled, prior flat in ln sigma on [1e-4, 10]).
         multipliers, fit, rows: as in ``fit_least_squares``.
-        seed: seeds the initial ball and emcee's random state. progress: show a rich progress bar.
+        seed: seeds the initial ball and emcee's random state.
+        progress: None or a callback ``progress(stage, done, total)`` (see the module docstring).
 
     Returns:
         ``Posterior``; warns ``ChainTooShortWarning`` when nsteps < 50 x the largest autocorrelation time.
     """
-    import emcee
-
-    priors = dict(priors or {})
-    if not isinstance(nwalkers, int) or not isinstance(nsteps, int) or nsteps < 1:
-        raise ValueError(f"nwalkers and nsteps must be positive ints, got {nwalkers!r}, {nsteps!r}")
-    burn = nsteps // 4 if burn is None else int(burn)
-    if not 0 <= burn < nsteps:
-        raise ValueError(f"burn must be in [0, nsteps), got {burn}")
-    if thin < 1:
-        raise ValueError(f"thin must be >= 1, got {thin}")
-    if sigma is not None and not (sigma > 0 and math.isfinite(sigma)):
-        raise ValueError(f"sigma must be > 0 (log10 units), got {sigma}")
-    if box <= 0:
-        raise ValueError(f"box must be > 0, got {box}")
+    progress = progress or None
+    burn = _check_mcmc_args(nwalkers, nsteps, burn, thin, sigma, box, progress)
+    if progress is not None:
+        progress("least squares", 0, 1)
     lsq = fit_least_squares(model, data, multipliers=multipliers, fit=fit, rows=rows)
+    if progress is not None:
+        progress("least squares", 1, 1)
     with jax.enable_x64(True):
-        prob = _Problem(model, data, fit=fit, multipliers=multipliers, rows=rows)
-        names = _param_names(prob)
-        known = set(names) | {leaf.field for leaf in prob.static.spec} | {leaf.name for leaf in prob.static.spec}
-        unknown = [k for k in priors if k not in known]
-        if unknown:
-            raise ValueError(f"priors name unknown or unfitted fields {unknown}; fitted: "
-                             f"{[leaf.name for leaf in prob.static.spec]}")
-        priors = {k: _as_prior(k, p) for k, p in priors.items()}
-        # least-squares optimum in the unconstrained coordinates, and its standard errors there
-        theta_hat = np.asarray(lsq.theta, np.float64)
-        fixed, arrays = _device_args(prob)
-        r_hat = np.asarray(lsq.residuals) * prob.arrays["sw"]
-        jac = np.asarray(_jacobian(jnp.asarray(theta_hat), fixed, arrays, prob.static))
-        s2 = float(np.sum(r_hat ** 2) / max(len(r_hat) - len(theta_hat), 1))
-        cov_u = np.linalg.pinv(jac.T @ jac, hermitian=True) * s2
-        sd_u = np.sqrt(np.clip(np.diag(cov_u), 1e-16, None))
-        vlogpost, ndim = _build_logpost(prob, priors, sigma, theta_hat, box, batched=True)
-        if nwalkers < 2 * ndim or nwalkers % 2:
-            raise ValueError(f"nwalkers must be even and >= 2 x {ndim} (the dimension), got {nwalkers}")
-        rng = np.random.default_rng(seed)
-        centre = theta_hat if sigma is not None else np.append(theta_hat, 0.5 * math.log(max(s2, 1e-8)))
-        spread = sd_u if sigma is not None else np.append(sd_u, 0.05)
-        p0 = centre + 0.5 * spread * rng.standard_normal((nwalkers, ndim))
-        lp0 = np.asarray(vlogpost(jnp.asarray(p0)))
-        if not np.isfinite(lp0).all():
-            raise ValueError("the starting ball has walkers outside the prior support; widen the priors "
-                             "or start the model inside them")
+        prob = Problem(model, data, fit=fit, multipliers=multipliers, rows=rows)
+        names = param_names(prob)
+        priors = _check_priors(dict(priors or {}), prob, names)
+        vlogpost, ndim = _build_logpost(prob, priors, sigma, np.asarray(lsq.theta, np.float64), box, batched=True)
+        p0 = _start_ball(prob, lsq, sigma, vlogpost, ndim, nwalkers, seed)
+        sampler = _sample(vlogpost, p0, nsteps, seed, progress)
+        import emcee
 
-        def log_prob(x):
-            return np.asarray(vlogpost(jnp.asarray(x)))
-
-        sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True)
-        sampler.random_state = np.random.RandomState(seed).get_state()
-        if progress:
-            from rich.progress import Progress
-
-            with Progress(transient=True) as bar:
-                task = bar.add_task(f"emcee {nwalkers}x{nsteps}", total=nsteps)
-                for i, _ in enumerate(sampler.sample(p0, iterations=nsteps)):
-                    if i % 50 == 49:
-                        bar.update(task, advance=50)
-        else:
-            sampler.run_mcmc(p0, nsteps)
         chain = sampler.get_chain()  # (nsteps, nwalkers, ndim)
         tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), np.float64)
         flat = chain[burn::thin].reshape(-1, ndim)
@@ -336,43 +353,14 @@ def fit_mcmc(
         theta_s = flat[:, : prob.static.n_free]
         samples = np.asarray(_natural_batch(jnp.asarray(theta_s), prob.static))
         sig = np.exp(flat[:, -1]) if sigma is None else np.full(len(flat), float(sigma))
-    tau_max = float(np.max(tau))
-    converged = bool(np.isfinite(tau_max) and nsteps >= _AUTOCORR_FACTOR * tau_max)
-    warning = None
-    if not converged:
-        warning = (f"chain too short: {nsteps} steps < {_AUTOCORR_FACTOR} x the largest integrated "
-                   f"autocorrelation time ({tau_max:.1f} steps); run >= {int(math.ceil(50 * tau_max))} steps")
+    converged, warning = _convergence(tau, nsteps)
+    if warning is not None:
         warnings.warn(warning, ChainTooShortWarning, stacklevel=2)
     return Posterior(
         samples=samples, sigma=sig, log_prob=lps, param_names=names,
         acceptance_fraction=float(np.mean(sampler.acceptance_fraction)), tau=tau, converged=converged,
         warning=warning, nwalkers=nwalkers, nsteps=nsteps, burn=burn, lsq=lsq, _problem=prob, _theta=theta_s,
     )
-
-
-@eqx.filter_jit
-def _natural_batch(thetas, st):
-    """Natural values of a batch of unconstrained vectors: (n, p_free) -> (n, p_natural)."""
-    from ._fit import _log10_multipliers
-
-    def one(theta):
-        out, off = [], 0
-        for s in st.spec:
-            x, _ = _from_u(theta[off:off + s.size], s)
-            out.append(x)
-            off += s.size
-        if st.multipliers:
-            out.append(_log10_multipliers(theta, st))
-        return jnp.concatenate(out)
-
-    return jax.vmap(one)(thetas)
-
-
-@eqx.filter_jit
-def _log10_batch(thetas, fixed, arrays, st):
-    from ._fit import _predict_log10
-
-    return jax.vmap(lambda th: _predict_log10(th, fixed, arrays, st))(thetas)
 
 
 def conservative(posterior: Posterior, q: float = 0.95, *, predictive: bool = True, n_draws: int = 400,
@@ -387,12 +375,10 @@ def conservative(posterior: Posterior, q: float = 0.95, *, predictive: bool = Tr
     class that ``save_model`` stores and the simplifier uses. With q = 0.95, a change the returned model
     calls imperceptible is (to the accuracy of the refit) imperceptible for 95 % of the posterior.
     """
-    from pmetric import CalibrationData
-
     if not 0 < q < 1:
-        raise ValueError(f"q must be in (0, 1), got {q}")
+        raise PlodError(f"q must be in (0, 1), got {q}")
     if n_draws < 10:
-        raise ValueError(f"n_draws must be >= 10, got {n_draws}")
+        raise PlodError(f"n_draws must be >= 10, got {n_draws}")
     prob = posterior._problem
     rng = np.random.default_rng(seed)
     ls = posterior.log10_sensitivity(n=n_draws, seed=seed)  # (n, rows)

@@ -1,20 +1,20 @@
 """Simulated calibration sessions against a simulated observer with known CSF constants.
 
-Seed 004 (Luebke & Hallen 2001) section 6.1 calibrates a per-user CSF: the user fixates a target while a
+[LH01 §6.1] calibrates a per-user CSF: the user fixates a target while a
 grating *fades in*, slowly increasing in contrast, and presses a button when something becomes visible
 (then clicks on the grating to verify). ``fade_in_session`` simulates this method of adjustment;
 ``staircase_2afc`` simulates the usual alternative, a two-alternative forced-choice (2AFC) staircase.
 Both run against a :class:`SimulatedObserver` whose true threshold is a CSF model's, to test how well a
 procedure (and a later fit) recovers known constants. Both are vectorized over stimuli (numpy; one
 random generator seeded by the observer's seed, so sessions are reproducible) and return a
-:class:`pmetric.CalibrationData`.
+:class:`optim.fit.CalibrationData`.
 
 Psychometric function (log-normal, i.e. a cumulative normal in log10 contrast)::
 
     P_core(c) = Phi(slope * log10(c / c_T)),   c_T = 1 / model.stimulus_sensitivity(f, e, v, L, A)
     P(c)      = guess + (1 - guess - lapse) * P_core(c)
 
-so c_T is the 50 % point of the core function (Barten's definition of threshold) and the contrast at
+so c_T is the 50 % point of the core function (the threshold definition of [Bar99]) and the contrast at
 which an observer first detects a fading-in grating is log-normal with median c_T and a standard
 deviation of ``1 / slope`` log10 units. ``slope = inf`` is a noise-free (step) observer.
 Units: f cycles/deg, e deg, v deg/s, luminance cd/m2, area deg2, contrast Michelson.
@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 from scipy.special import ndtr, ndtri
+
+from pmetric import PlodError
 
 from ._data import CalibrationData
 
@@ -60,17 +62,17 @@ class Stimuli:
         try:
             shape = np.broadcast_shapes(*(a.shape for a in arrs.values()))
         except ValueError:
-            raise ValueError("Stimuli: shapes do not broadcast: "
+            raise PlodError("Stimuli: shapes do not broadcast: "
                              + ", ".join(f"{k}{a.shape}" for k, a in arrs.items())) from None
         if len(shape) > 1:
-            raise ValueError(f"Stimuli: arrays must be scalars or 1-D, broadcast shape is {shape}")
+            raise PlodError(f"Stimuli: arrays must be scalars or 1-D, broadcast shape is {shape}")
         for k, a in arrs.items():
             a = np.broadcast_to(a, shape).reshape(-1).copy()
             if k in ("f", "e", "v") and not np.isfinite(a).all():
-                raise ValueError(f"Stimuli: {k} must be finite")
+                raise PlodError(f"Stimuli: {k} must be finite")
             bad = a <= 0 if k == "f" else a < 0
             if np.any(bad & ~np.isnan(a)):
-                raise ValueError(f"Stimuli: {k} must be {'> 0' if k == 'f' else '>= 0'}, got {a[bad][0]!r}")
+                raise PlodError(f"Stimuli: {k} must be {'> 0' if k == 'f' else '>= 0'}, got {a[bad][0]!r}")
             a.setflags(write=False)
             object.__setattr__(self, k, a)
 
@@ -96,13 +98,13 @@ class SimulatedObserver:
 
     def __init__(self, model, slope: float = 4.0, lapse: float = 0.0, guess: float = 0.0, seed: int = 0):
         if not hasattr(model, "stimulus_sensitivity"):
-            raise ValueError(f"SimulatedObserver: model must be a pmetric CSF model, got {type(model).__name__}")
+            raise PlodError(f"SimulatedObserver: model must be a pmetric CSF model, got {type(model).__name__}")
         if not (slope > 0) or math.isnan(slope):
-            raise ValueError(f"SimulatedObserver: slope must be > 0 (inf = noise-free), got {slope!r}")
+            raise PlodError(f"SimulatedObserver: slope must be > 0 (inf = noise-free), got {slope!r}")
         if not (0.0 <= lapse < 1.0):
-            raise ValueError(f"SimulatedObserver: lapse must be in [0, 1), got {lapse!r}")
+            raise PlodError(f"SimulatedObserver: lapse must be in [0, 1), got {lapse!r}")
         if not (0.0 <= guess < 1.0) or guess + lapse >= 1.0:
-            raise ValueError(f"SimulatedObserver: guess must be in [0, 1) with guess + lapse < 1, got {guess!r}")
+            raise PlodError(f"SimulatedObserver: guess must be in [0, 1) with guess + lapse < 1, got {guess!r}")
         self.model = model
         self.slope = float(slope)
         self.lapse = float(lapse)
@@ -148,7 +150,7 @@ class SimulatedObserver:
 
 def _labels(observer, method):
     return dict(dataset=f"simulated_{method}", observer=f"sim{observer.seed}", stimulus=method,
-                source=f"pmetric.simulate {type(observer.model).__name__} slope={observer.slope:g} "
+                source=f"optim.fit.simulate {type(observer.model).__name__} slope={observer.slope:g} "
                        f"lapse={observer.lapse:g} seed={observer.seed}")
 
 
@@ -164,7 +166,7 @@ def fade_in_session(
     frame_rate: float | None = None,
     positions: int = 4,
 ) -> CalibrationData:
-    """Seed 004 section 6.1's method of adjustment: the grating's contrast rises from ``start_contrast``
+    """The method of adjustment of [LH01 §6.1]: the grating's contrast rises from ``start_contrast``
     by ``rate_db_per_s`` (dB of contrast, 20 log10, per second) until the observer presses a button.
 
     The observer detects the grating at ``observer.detection_contrast`` (or, with probability
@@ -174,21 +176,21 @@ def fade_in_session(
     otherwise the ramp is continuous. The recorded threshold is the contrast on screen at the response
     corrected for the nominal reaction time: c_resp / 10^(rate * reaction_time_s / 20).
 
-    The verification click of seed 004 is simulated: a genuine detection clicks the right one of
+    The verification click of [LH01 §6.1] is simulated: a genuine detection clicks the right one of
     ``positions`` grating positions; a lapse clicks at random, and rows with a wrong click are dropped,
     as are gratings never detected up to ``max_contrast``. Returns ``CalibrationData`` (dataset
     ``simulated_fade``) with the stimuli that remain.
     """
     if not (rate_db_per_s > 0 and math.isfinite(rate_db_per_s)):
-        raise ValueError(f"fade_in_session: rate_db_per_s must be a positive number, got {rate_db_per_s!r}")
+        raise PlodError(f"fade_in_session: rate_db_per_s must be a positive number, got {rate_db_per_s!r}")
     if not (reaction_time_s >= 0 and reaction_sd_s >= 0):
-        raise ValueError("fade_in_session: reaction_time_s and reaction_sd_s must be >= 0")
+        raise PlodError("fade_in_session: reaction_time_s and reaction_sd_s must be >= 0")
     if not (0 < start_contrast < max_contrast <= 1.0):
-        raise ValueError("fade_in_session: need 0 < start_contrast < max_contrast <= 1")
+        raise PlodError("fade_in_session: need 0 < start_contrast < max_contrast <= 1")
     if frame_rate is not None and not frame_rate > 0:
-        raise ValueError(f"fade_in_session: frame_rate must be > 0 Hz, got {frame_rate!r}")
+        raise PlodError(f"fade_in_session: frame_rate must be > 0 Hz, got {frame_rate!r}")
     if int(positions) < 1:
-        raise ValueError("fade_in_session: positions must be >= 1")
+        raise PlodError("fade_in_session: positions must be >= 1")
     rng = observer.rng
     n = len(stimuli)
     c_t = observer.threshold(stimuli)
@@ -236,7 +238,7 @@ def staircase_2afc(
     ``observer.p_correct(c, c_T, guess=max(observer.guess, 0.5))``. ``rule`` "Ndown1up" lowers the
     contrast by ``step_db`` (dB, 20 log10) after N consecutive correct answers and raises it after each
     error (capped at ``max_contrast``); it converges to P = 0.5^(1/N) correct (3down1up: 79.4 %).
-    With ``fast_start`` (Levitt 1971's rapid initial descent) the track steps down after every correct
+    With ``fast_start`` (the rapid initial descent of [Lev71]) the track steps down after every correct
     answer by twice ``step_db`` until its first reversal.
     The threshold is the geometric mean of the contrasts at the reversals after the first
     ``discard_reversals`` (all reversals if there are not more). Rows whose staircase sat at
@@ -245,15 +247,15 @@ def staircase_2afc(
     Returns ``CalibrationData`` (dataset ``simulated_2afc``).
     """
     if rule not in RULES:
-        raise ValueError(f"staircase_2afc: unknown rule {rule!r}; choose one of {sorted(RULES)}")
+        raise PlodError(f"staircase_2afc: unknown rule {rule!r}; choose one of {sorted(RULES)}")
     if int(trials) < 2:
-        raise ValueError(f"staircase_2afc: trials must be >= 2, got {trials!r}")
+        raise PlodError(f"staircase_2afc: trials must be >= 2, got {trials!r}")
     if not (step_db > 0 and math.isfinite(step_db)):
-        raise ValueError(f"staircase_2afc: step_db must be a positive number, got {step_db!r}")
+        raise PlodError(f"staircase_2afc: step_db must be a positive number, got {step_db!r}")
     if not (0 < start_contrast <= max_contrast <= 1.0):
-        raise ValueError("staircase_2afc: need 0 < start_contrast <= max_contrast <= 1")
+        raise PlodError("staircase_2afc: need 0 < start_contrast <= max_contrast <= 1")
     if discard_reversals < 0:
-        raise ValueError("staircase_2afc: discard_reversals must be >= 0")
+        raise PlodError("staircase_2afc: discard_reversals must be >= 0")
     n_down = RULES[rule][0]
     rng = observer.rng
     n = len(stimuli)

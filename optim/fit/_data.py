@@ -1,8 +1,8 @@
 """Psychophysical contrast-threshold data for calibrating and fitting CSF models.
 
 ``CalibrationData`` reads the CSV layout of the Mantiuk group's achromatic threshold collections
-(castleCSF / stelaCSF: Ashraf et al. 2024, JoV 24(4):5; Mantiuk et al. 2022, ACM TOG 41(4):145) and of
-per-user calibrations (seed 004 section 6.1: threshold contrast over frequency x eccentricity).
+(castleCSF / stelaCSF: [Ash24], [MAC22]) and of per-user calibrations ([LH01 §6.1]: threshold contrast
+over frequency x eccentricity).
 
 CSV columns (header names; order free, extra columns ignored)
 -------------------------------------------------------------
@@ -31,38 +31,25 @@ A numeric header may carry a unit suffix, e.g. ``s_frequency_cpd``, ``t_frequenc
 ``luminance_cdm2``, ``area_deg2``, ``eccentricity_deg`` (as in ``reference_values_achromatic.csv``);
 an unknown suffix (``s_frequency_cpm``) is an error rather than a silent unit mismatch.
 
-Every error is a ``ValueError`` naming the file, the 1-based line in the file and the column.
+Every error is a ``pmetric.PlodError`` (a ``ValueError``) naming the file, the 1-based line in the file
+and the column.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-import math
 import os
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-from ._atomic import atomic_path
+from pmetric import PlodError, atomic_path
+
+from ._csv import parse_csv
 
 __all__ = ["CalibrationData"]
-
-# base column -> accepted unit suffixes (lower case); "" = no suffix.
-_UNITS: dict[str, tuple[str, ...]] = {
-    "s_frequency": ("", "cpd", "cycles_per_deg"),
-    "t_frequency": ("", "hz"),
-    "velocity": ("", "deg_s", "degs", "dps", "deg_per_s"),
-    "eccentricity": ("", "deg"),
-    "luminance": ("", "cdm2", "cd_m2"),
-    "area": ("", "deg2"),
-    "vis_field": ("", "deg"),
-    "ge_sigma": ("", "deg"),
-    "orientation": ("", "deg"),
-}
-_NUMERIC_OTHER = ("N", "log_cone_contrast", "var_log_cone_contrast", "sensitivity")
-_LABELS = ("dataset", "observer", "stimulus", "source")
 
 _FLOAT_FIELDS = (
     "f", "t_frequency", "velocity", "e", "luminance", "area", "log_threshold", "n",
@@ -79,37 +66,6 @@ _CSV_OUT = (
     ("log_cone_contrast", "log_threshold"), ("var_log_cone_contrast", "var_log_threshold"),
     ("sensitivity", None), ("source", "source"),
 )
-
-
-def _canonical_header(name: str, where: str) -> str | None:
-    """Map a header cell to its canonical column name, or None when the column is not ours."""
-    raw = name.strip()
-    if raw in _NUMERIC_OTHER or raw in _LABELS:
-        return raw
-    low = raw.lower()
-    for base, units in _UNITS.items():
-        if low == base:
-            return base
-        if low.startswith(base + "_"):
-            unit = low[len(base) + 1:]
-            if unit not in units:
-                known = ", ".join(repr(u) for u in units if u)
-                raise ValueError(
-                    f"{where}: column {raw!r} has unknown unit {unit!r} for {base!r}; "
-                    f"accepted: no suffix or {known}"
-                )
-            return base
-    return None
-
-
-def _parse_float(cell: str, where: str, column: str) -> float:
-    s = cell.strip()
-    if s == "":
-        return math.nan
-    try:
-        return float(s)
-    except ValueError:
-        raise ValueError(f"{where}, column {column!r}: {cell!r} is not a number") from None
 
 
 class CalibrationData:
@@ -134,17 +90,17 @@ class CalibrationData:
         missing = [k for k in _FLOAT_FIELDS + _STR_FIELDS if k not in fields]
         extra = [k for k in fields if k not in _FLOAT_FIELDS + _STR_FIELDS]
         if missing or extra:
-            raise ValueError(f"CalibrationData: missing fields {missing}, unknown fields {extra}; "
+            raise PlodError(f"CalibrationData: missing fields {missing}, unknown fields {extra}; "
                              "use CalibrationData.from_arrays or from_csv")
         n = None
         for k in _FLOAT_FIELDS + _STR_FIELDS:
             a = np.asarray(fields[k], dtype=np.float64 if k in _FLOAT_FIELDS else np.str_)
             if a.ndim != 1:
-                raise ValueError(f"CalibrationData: field {k!r} must be 1-D, got shape {a.shape}")
+                raise PlodError(f"CalibrationData: field {k!r} must be 1-D, got shape {a.shape}")
             if n is None:
                 n = a.shape[0]
             elif a.shape[0] != n:
-                raise ValueError(f"CalibrationData: field {k!r} has {a.shape[0]} rows, expected {n}")
+                raise PlodError(f"CalibrationData: field {k!r} has {a.shape[0]} rows, expected {n}")
             a = a.copy()
             a.setflags(write=False)
             object.__setattr__(self, k, a)
@@ -182,9 +138,9 @@ class CalibrationData:
         like CSV cells; errors name the offending row (0-based index) and field.
         """
         if (log_threshold is None) == (sensitivity is None):
-            raise ValueError("from_arrays: give exactly one of log_threshold and sensitivity")
+            raise PlodError("from_arrays: give exactly one of log_threshold and sensitivity")
         if t_frequency is not None and velocity is not None:
-            raise ValueError("from_arrays: give at most one of t_frequency (Hz) and velocity (deg/s)")
+            raise PlodError("from_arrays: give at most one of t_frequency (Hz) and velocity (deg/s)")
         num = {
             "f": f, "e": e, "luminance": luminance, "area": area, "n": n,
             "var_log_threshold": var_log_threshold, "vis_field": vis_field, "ge_sigma": ge_sigma,
@@ -195,16 +151,16 @@ class CalibrationData:
         try:
             arrs = {k: np.asarray(v, dtype=np.float64) for k, v in num.items()}
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"from_arrays: numeric input is not numeric ({exc})") from None
+            raise PlodError(f"from_arrays: numeric input is not numeric ({exc})") from None
         labels = {k: np.asarray(v, dtype=np.str_) for k, v in
                   {"dataset": dataset, "observer": observer, "stimulus": stimulus, "source": source}.items()}
         try:
             shape = np.broadcast_shapes(*(a.shape for a in arrs.values()), *(a.shape for a in labels.values()))
         except ValueError:
-            raise ValueError("from_arrays: input shapes do not broadcast: "
+            raise PlodError("from_arrays: input shapes do not broadcast: "
                              + ", ".join(f"{k}{a.shape}" for k, a in {**arrs, **labels}.items())) from None
         if len(shape) > 1:
-            raise ValueError(f"from_arrays: inputs must be scalars or 1-D, broadcast shape is {shape}")
+            raise PlodError(f"from_arrays: inputs must be scalars or 1-D, broadcast shape is {shape}")
         arrs = {k: np.broadcast_to(a, shape).reshape(-1) for k, a in arrs.items()}
         labels = {k: np.broadcast_to(a, shape).reshape(-1) for k, a in labels.items()}
         fields = _finish(arrs, labels, is_log=log_threshold is not None,
@@ -221,116 +177,16 @@ class CalibrationData:
         try:
             text = p.read_text(encoding="utf-8-sig")
         except FileNotFoundError:
-            raise ValueError(f"calibration file {str(p)!r} does not exist") from None
+            raise PlodError(f"calibration file {str(p)!r} does not exist") from None
         except UnicodeDecodeError as exc:
-            raise ValueError(f"calibration file {str(p)!r} is not UTF-8 text ({exc.reason})") from None
+            raise PlodError(f"calibration file {str(p)!r} is not UTF-8 text ({exc.reason})") from None
         return cls.from_csv_text(text, name=str(p), dataset=dataset if dataset is not None else p.stem)
 
     @classmethod
     def from_csv_text(cls, text: str, *, name: str = "<csv>", dataset: str = "data") -> "CalibrationData":
         """Parse CSV text (same rules as ``from_csv``); ``name`` appears in error messages."""
-        reader = csv.reader(io.StringIO(text))
-        try:
-            header = next(reader)
-        except StopIteration:
-            raise ValueError(f"{name}: empty file (no header line)") from None
-        except csv.Error as exc:
-            raise ValueError(f"{name}, line 1: malformed CSV ({exc})") from None
-        cols: dict[str, int] = {}
-        for j, h in enumerate(header):
-            c = _canonical_header(h, f"{name}, line 1")
-            if c is None:
-                continue
-            if c in cols:
-                raise ValueError(f"{name}, line 1: column {c!r} appears twice (as {header[cols[c]]!r} and {h!r})")
-            cols[c] = j
-        if "s_frequency" not in cols:
-            raise ValueError(f"{name}, line 1: missing required column 's_frequency' (cycles/deg); "
-                             f"header is {header}")
-        if "log_cone_contrast" not in cols and "sensitivity" not in cols:
-            raise ValueError(f"{name}, line 1: missing required column 'log_cone_contrast' "
-                             f"(log10 threshold contrast) or 'sensitivity'; header is {header}")
-        num_cols = [c for c in cols if c not in _LABELS]
-        vals: dict[str, list[float]] = {c: [] for c in num_cols}
-        empty: dict[str, list[bool]] = {c: [] for c in num_cols}
-        labs: dict[str, list[str]] = {c: [] for c in _LABELS if c in cols}
-        lines: list[int] = []
-        try:
-            for row in reader:
-                line = reader.line_num
-                if not row or all(not cell.strip() for cell in row):
-                    continue  # blank line
-                if len(row) != len(header):
-                    raise ValueError(f"{name}, line {line}: {len(row)} cells, the header has {len(header)}")
-                where = f"{name}, line {line}"
-                for c in num_cols:
-                    vals[c].append(_parse_float(row[cols[c]], where, header[cols[c]]))
-                    empty[c].append(not row[cols[c]].strip())
-                for c in labs:
-                    labs[c].append(row[cols[c]].strip())
-                lines.append(line)
-        except csv.Error as exc:
-            raise ValueError(f"{name}, line {reader.line_num}: malformed CSV ({exc})") from None
-        if not lines:
-            raise ValueError(f"{name}: no data rows after the header")
-        nrows = len(lines)
-
-        def col(c, default):
-            return np.asarray(vals[c], dtype=np.float64) if c in vals else np.full(nrows, default)
-
-        where = lambda i: f"{name}, line {lines[i]}"  # noqa: E731
-        # cross-check log_cone_contrast against sensitivity when both are given
-        if "log_cone_contrast" in vals and "sensitivity" in vals:
-            lc, s = col("log_cone_contrast", np.nan), col("sensitivity", np.nan)
-            both = np.isfinite(lc) & np.isfinite(s) & (s > 0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                bad = both & (np.abs(np.log10(np.where(both, s, 1.0)) + lc) > np.log10(1.01))
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise ValueError(f"{where(i)}, column 'sensitivity': {s[i]} disagrees with "
-                                 f"log_cone_contrast {lc[i]} (expected {10 ** -lc[i]:.6g})")
-        is_log = "log_cone_contrast" in vals
-        is_vel = "velocity" in vals and "t_frequency" not in vals
-        arrs = {
-            "f": col("s_frequency", np.nan),
-            "e": col("eccentricity", 0.0),
-            "luminance": col("luminance", np.nan),
-            "area": col("area", np.nan),
-            "n": col("N", 1.0),
-            "var_log_threshold": col("var_log_cone_contrast", np.nan),
-            "vis_field": col("vis_field", np.nan),
-            "ge_sigma": col("ge_sigma", np.nan),
-            "orientation": col("orientation", np.nan),
-            "thr": col("log_cone_contrast", np.nan) if is_log else col("sensitivity", np.nan),
-            "tv": col("velocity", 0.0) if is_vel else col("t_frequency", 0.0),
-        }
-        # empty optional cells take their defaults (an explicit "NaN" in e / t_frequency is an error)
-        if "eccentricity" in vals:
-            arrs["e"] = np.where(empty["eccentricity"], 0.0, arrs["e"])
-        tv_col = "velocity" if is_vel else "t_frequency"
-        if tv_col in vals:
-            arrs["tv"] = np.where(empty[tv_col], 0.0, arrs["tv"])
-        arrs["n"] = np.where(np.isnan(arrs["n"]), 1.0, arrs["n"])
-        if "velocity" in vals and "t_frequency" in vals:
-            tf, v, f = col("t_frequency", 0.0), col("velocity", 0.0), arrs["f"]
-            ok = np.isfinite(tf) & np.isfinite(v) & np.isfinite(f) & (f > 0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                bad = ok & ~np.isclose(v, tf / np.where(ok, f, 1.0), rtol=1e-3, atol=1e-9)
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise ValueError(f"{where(i)}, column 'velocity': {v[i]} deg/s disagrees with "
-                                 f"t_frequency / s_frequency = {tf[i] / f[i]:.6g}")
-        labels = {
-            "dataset": np.asarray(labs["dataset"], dtype=np.str_) if "dataset" in labs else np.full(nrows, dataset),
-            "observer": np.asarray(labs.get("observer", [""] * nrows), dtype=np.str_),
-            "stimulus": np.asarray(labs.get("stimulus", [""] * nrows), dtype=np.str_),
-            "source": np.asarray(labs.get("source", [""] * nrows), dtype=np.str_),
-        }
-        fields = _finish(arrs, labels, is_log=is_log, is_velocity=is_vel, where=where,
-                         colname={"f": "s_frequency", "e": "eccentricity", "n": "N",
-                                  "thr": "log_cone_contrast" if is_log else "sensitivity",
-                                  "tv": "velocity" if is_vel else "t_frequency"})
-        return cls(**fields)
+        arrs, labels, opts = parse_csv(text, name, dataset)
+        return cls(**_finish(arrs, labels, **opts))
 
     # ------------------------------------------------------------------ derived values
     @property
@@ -370,14 +226,14 @@ class CalibrationData:
         m = np.asarray(mask)
         if m.dtype == bool:
             if m.shape != (len(self),):
-                raise ValueError(f"subset: boolean mask has shape {m.shape}, expected ({len(self)},)")
+                raise PlodError(f"subset: boolean mask has shape {m.shape}, expected ({len(self)},)")
         elif np.issubdtype(m.dtype, np.integer):
             if m.ndim != 1:
-                raise ValueError(f"subset: index array must be 1-D, got shape {m.shape}")
+                raise PlodError(f"subset: index array must be 1-D, got shape {m.shape}")
             if m.size and (m.max() >= len(self) or m.min() < -len(self)):
-                raise ValueError(f"subset: index out of range for {len(self)} rows")
+                raise PlodError(f"subset: index out of range for {len(self)} rows")
         else:
-            raise ValueError(f"subset: mask must be boolean or integer, got dtype {m.dtype}")
+            raise PlodError(f"subset: mask must be boolean or integer, got dtype {m.dtype}")
         return CalibrationData(**{k: getattr(self, k)[m] for k in _FLOAT_FIELDS + _STR_FIELDS})
 
     def by_dataset(self) -> dict[str, "CalibrationData"]:
@@ -393,7 +249,7 @@ class CalibrationData:
         """Stack several data sets row-wise."""
         parts = list(parts)
         if not parts:
-            raise ValueError("concatenate: no data sets given")
+            raise PlodError("concatenate: no data sets given")
         return CalibrationData(**{k: np.concatenate([getattr(p, k) for p in parts])
                                   for k in _FLOAT_FIELDS + _STR_FIELDS})
 
@@ -451,7 +307,7 @@ def _finish(arrs, labels, *, is_log, is_velocity, where, colname=None) -> dict:
     def fail(mask, k, msg):
         if mask.any():
             i = int(np.argmax(mask))
-            raise ValueError(f"{where(i)}, column {cn(k)!r}: {msg} (got {arrs[k][i]!r})")
+            raise PlodError(f"{where(i)}, column {cn(k)!r}: {msg} (got {arrs[k][i]!r})")
 
     # required, finite
     for k in ("f", "thr", "e", "tv"):
@@ -488,3 +344,4 @@ def _finish(arrs, labels, *, is_log, is_velocity, where, colname=None) -> dict:
     }
     out.update(labels)
     return out
+

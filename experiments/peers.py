@@ -1,0 +1,42 @@
+"""The peers plod is compared with: view-independent simplifiers run to a triangle count.
+
+* :func:`meshopt_simplify`: meshoptimizer's ``simplify`` (its error bound lifted so the count decides);
+* :func:`fast_simplify`: fast-simplification's quadric decimation;
+* :func:`compact`: drop the vertices a simplified face list no longer uses.
+
+Both simplifiers take ``vertices`` (V, 3) in object units and ``faces`` (T, 3) and return the new faces
+(meshoptimizer keeps the input vertices; fast-simplification returns ``(vertices, faces)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["compact", "fast_simplify", "meshopt_simplify"]
+
+
+def compact(vertices, faces, colors=None):
+    """``(vertices, faces int32, colors)`` with only the vertices ``faces`` uses, renumbered in order."""
+    used, inv = np.unique(faces.ravel(), return_inverse=True)
+    return vertices[used], inv.reshape(-1, 3).astype(np.int32), None if colors is None else colors[used]
+
+
+def meshopt_simplify(vertices, faces, target):
+    """meshoptimizer's simplify to ``target`` triangles: faces (T', 3) int64 into ``vertices``."""
+    import meshoptimizer
+
+    idx = np.ascontiguousarray(faces, dtype=np.uint32).ravel()
+    pos = np.ascontiguousarray(vertices, dtype=np.float32)
+    dest = np.empty_like(idx)
+    n = meshoptimizer.simplify(dest, idx, pos, target_index_count=3 * int(target), target_error=1.0)
+    return dest[:n].reshape(-1, 3).astype(np.int64)
+
+
+def fast_simplify(vertices, faces, target):
+    """fast-simplification's decimation to ``target`` triangles: ``(vertices, faces)``."""
+    import fast_simplification
+
+    # writable C-ordered copies: the binding rejects read-only arrays (a tree's vertices are read-only)
+    return fast_simplification.simplify(np.array(vertices, dtype=np.float64, order="C"),
+                                        np.array(faces, dtype=np.int64, order="C"),
+                                        target_count=max(int(target), 1))

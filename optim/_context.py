@@ -1,0 +1,215 @@
+"""The per-tree scoring context: what :func:`optim.score` needs of a tree, built once per tree.
+
+Only the M internal nodes are kept (a leaf has nothing to fold: its key is 0), in breadth-first order
+with children grouped by parent, as flat float32 columns split into chunks (:class:`_Chunk`) of
+``_CHUNK`` nodes: on arrays of more than about 2 MB XLA:CPU's per-element cost is several times
+higher, so each per-view program runs once per chunk. Chunks are padded to a multiple of ``_PAD``
+nodes: on a length that is not a multiple of the vector width XLA:CPU emits scalar loops.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pmetric import PlodError
+
+from ._levels import Levels
+from ._tree import VertexTree
+
+__all__ = ["ScoringContext", "scoring_context"]
+
+#: internal nodes per chunk of the per-view programs (1 MiB float32 columns)
+_CHUNK = 262144
+#: child-group sizes up to this use fixed-arity gathers in the max propagation (else reduceat)
+_MAX_ARITY = 8
+#: chunk lengths are padded to a multiple of this many nodes (vectorised XLA loops)
+_PAD = 1024
+
+_FIELDS = ("parent", "child_start", "child_count", "center", "radius", "lum_min", "lum_max",
+           "fold_delta", "geom_error", "normal_mask")
+
+
+class _Chunk(eqx.Module):
+    """Device arrays of up to ``_CHUNK`` internal nodes (breadth-first order): flat float32 columns
+    ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units), ``lum_min``, ``lum_max``,
+    ``fold_delta`` (relative luminance), ``geom_error`` (object units); normal masks (48 bytes = 12
+    uint32 words) as ``word_idx``, ``word_val`` (C, 2): the (up to) two nonzero words of each mask,
+    ``wide`` (W,) positions of masks with more nonzero words and ``wide_mask`` (W, 12) their full
+    masks; ``nonempty`` (C,) bool."""
+
+    cx: jax.Array
+    cy: jax.Array
+    cz: jax.Array
+    radius: jax.Array
+    lum_min: jax.Array
+    lum_max: jax.Array
+    fold_delta: jax.Array
+    geom_error: jax.Array
+    word_idx: jax.Array
+    word_val: jax.Array
+    wide: jax.Array
+    wide_mask: jax.Array
+    nonempty: jax.Array
+
+
+class _HostMasks(NamedTuple):
+    """numpy copies of a chunk's compacted normal masks for the numpy classify step: ``val`` (C, 2)
+    uint64 (the word repeated in both halves), ``wide`` (W,) positions, ``wide_val`` (W, 12) uint64,
+    ``nonempty``. Kept on the context, not on the chunk: a field added to the eqx.Module would change
+    its jit cache key and recompile the programs."""
+
+    val: np.ndarray
+    wide: np.ndarray
+    wide_val: np.ndarray
+    nonempty: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ScoringContext:
+    """Per-tree data of :func:`optim.score`, built once by :func:`scoring_context` (cached on the tree).
+
+    ``chunks`` (:class:`_Chunk`, device) and ``host_masks`` (:class:`_HostMasks`, numpy) per chunk,
+    ``sizes`` the number of real (unpadded) nodes in each; ``levels`` (:class:`optim._levels.Levels`)
+    the level structure of the M internal nodes for the two tree passes (culling down, maximum up);
+    ``node`` (M,) tree index of each; ``n_nodes`` N; ``scene_lum`` the darkest and brightest relative
+    luminance of the model.
+    """
+
+    chunks: tuple
+    host_masks: tuple
+    sizes: tuple
+    levels: Levels
+    node: np.ndarray
+    n_nodes: int
+    scene_lum: tuple
+
+    @property
+    def m(self) -> int:
+        """Number of internal nodes M."""
+        return len(self.node)
+
+    def to_tree(self, vals: np.ndarray, fill=0) -> np.ndarray:
+        """Internal-node values (M,) -> tree order (N,), ``fill`` at the leaves."""
+        out = np.full(self.n_nodes, fill, dtype=vals.dtype)
+        out[self.node] = vals
+        return out
+
+
+def _check_tree(tree) -> int:
+    missing = [f for f in _FIELDS if getattr(tree, f, None) is None]
+    if missing:
+        raise PlodError(f"score: the tree lacks the field(s) {', '.join(missing)} (expected an optim.VertexTree)")
+    n = len(np.asarray(tree.parent))
+    if n == 0:
+        raise PlodError("score: the tree has no nodes")
+    for f in _FIELDS:
+        a = np.asarray(getattr(tree, f))
+        want = {"center": (n, 3), "normal_mask": (n, 48)}.get(f, (n,))
+        if a.shape != want:
+            raise PlodError(f"score: tree.{f} has shape {a.shape}, expected {want}")
+    return n
+
+
+def _level_order(parent, child_start, child_count):
+    """Breadth-first order of the nodes: (order (N,) tree indices, depth (N,) of each entry)."""
+    n = len(parent)
+    roots = np.flatnonzero(parent < 0)
+    if len(roots) != 1 or roots[0] != 0:
+        raise PlodError(f"score: the tree must have exactly one root, node 0 (found roots {roots[:5].tolist()})")
+    order, depth = [np.array([0], np.int64)], [np.zeros(1, np.int64)]
+    total = 1
+    while True:
+        cur = order[-1]
+        cnt = child_count[cur].astype(np.int64)
+        if cnt.sum() == 0:
+            break
+        starts = np.repeat(child_start[cur].astype(np.int64), cnt)
+        nxt = starts + np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        order.append(nxt)
+        depth.append(np.full(len(nxt), len(depth)))
+        total += len(nxt)
+        if total > n:
+            raise PlodError("score: the tree's child ranges are inconsistent (a node is reached twice)")
+    if total != n:
+        raise PlodError(f"score: only {total} of {n} nodes are reachable from the root through child ranges")
+    order = np.concatenate(order)
+    if not np.array_equal(parent[order[1:]] >= 0, np.ones(n - 1, bool)):
+        raise PlodError("score: the tree's parent and child arrays disagree")
+    return order, np.concatenate(depth)
+
+
+def _internal_levels(tree, n: int):
+    """(tree index (M,) of the internal nodes in breadth-first order, their :class:`Levels`)."""
+    parent = np.asarray(tree.parent, np.int64)
+    count = np.asarray(tree.child_count)
+    order, depth = _level_order(parent, np.asarray(tree.child_start), count)
+    keep = count[order] > 0
+    node = order[keep] if keep.any() else np.zeros(1, np.int64)  # a lone vertex: nothing to fold
+    depth_int = depth[keep] if keep.any() else np.zeros(1, np.int64)
+    pos = np.full(n, -1, np.int64)
+    pos[node] = np.arange(len(node))
+    par = np.where(parent[node] >= 0, pos[np.maximum(parent[node], 0)], -1)
+    if (par[1:] < 0).any():
+        raise PlodError("score: an internal node's parent is not an internal node")
+    return node, Levels.from_depth(par, depth_int, max_arity=_MAX_ARITY)
+
+
+def _compact_masks(mask: np.ndarray) -> dict:
+    """Normal masks (M, 12) uint32 -> up to 2 nonzero (word index, word) pairs per node, plus the
+    positions (and full masks) of the nodes that use more than 2 words."""
+    nz = mask != 0
+    wide = np.flatnonzero(nz.sum(1) > 2)
+    order = np.argsort(~nz, axis=1, kind="stable")[:, :2]  # first two nonzero words (or zero words)
+    val = np.take_along_axis(mask, order, 1)
+    val[wide] = 0
+    return dict(word_idx=jnp.asarray(order.astype(np.int32)), word_val=jnp.asarray(val),
+                wide=jnp.asarray(wide.astype(np.int32)), wide_mask=jnp.asarray(mask[wide]))
+
+
+def _host_masks(ch: _Chunk) -> _HostMasks:
+    dbl = lambda w: (lambda u: u | (u << np.uint64(32)))(np.asarray(w).astype(np.uint64))  # noqa: E731
+    return _HostMasks(dbl(ch.word_val), np.asarray(ch.wide).astype(np.intp), dbl(ch.wide_mask),
+                      np.asarray(ch.nonempty))
+
+
+def _chunks(cols: dict, mask: np.ndarray, m: int):
+    """(chunks, sizes): the columns and masks of the M internal nodes cut into padded chunks."""
+    chunks, sizes = [], []
+    for a in range(0, m, _CHUNK):
+        sl = slice(a, min(a + _CHUNK, m))
+        size = sl.stop - a
+        pad = -size % _PAD  # zero nodes (empty masks) up to a multiple of _PAD
+        padf = lambda v: np.concatenate([v, np.zeros((pad,) + v.shape[1:], v.dtype)]) if pad else v  # noqa: E731
+        mk = padf(mask[sl])
+        chunks.append(_Chunk(**{k: jnp.asarray(np.ascontiguousarray(padf(v[sl]), np.float32)) for k, v in cols.items()},
+                             **_compact_masks(mk), nonempty=jnp.asarray((mk != 0).any(1))))
+        sizes.append(size)
+    return tuple(chunks), tuple(sizes)
+
+
+def _build(tree) -> ScoringContext:
+    n = _check_tree(tree)
+    node, levels = _internal_levels(tree, n)
+    center = np.asarray(tree.center, np.float32)[node]
+    mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
+    lum_min, lum_max = np.asarray(tree.lum_min, np.float32), np.asarray(tree.lum_max, np.float32)
+    cols = dict(cx=center[:, 0], cy=center[:, 1], cz=center[:, 2], radius=np.asarray(tree.radius)[node],
+                lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(tree.fold_delta)[node],
+                geom_error=np.asarray(tree.geom_error)[node])
+    chunks, sizes = _chunks(cols, mask, len(node))
+    scene = (float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1)))
+    return ScoringContext(chunks, tuple(_host_masks(ch) for ch in chunks), sizes, levels, node, n, scene)
+
+
+def scoring_context(tree) -> ScoringContext:
+    """The device arrays :func:`optim.score` needs for ``tree``: built once, cached on an
+    :class:`optim.VertexTree` (other tree-like objects are rebuilt on every call)."""
+    if isinstance(tree, VertexTree):
+        return tree.derived("scoring_context", lambda: _build(tree))
+    return _build(tree)

@@ -1,0 +1,95 @@
+"""Level-by-level propagation over a breadth-first tree: the one implementation used by the tree
+build (bottom-up sums, minima, maxima, ORs), the scoring (maximum up [LH01 fn 2], culling down) and
+the cuts (``repair_monotone``, closing a cut under ancestors).
+
+Nodes are numbered level by level (depth d occupies ``start[d]:start[d + 1]``) with the children
+of each parent contiguous, so every level is a run of child groups and one ``ufunc.reduceat`` per
+level reduces them; ``parent[i]`` is the position of node i's parent (-1 for the root).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Levels"]
+
+
+class Levels:
+    """Child groups of every level of a breadth-first tree.
+
+    ``parent`` (N,) positions of the parents (-1 for the root); ``start`` (D + 2,) level offsets.
+    ``groups[k]`` for level k >= 1 (``groups[0]`` is None): ``(a, b, seg, pids)``: the level is
+    ``a:b``, its child groups start at ``a + seg`` and belong to the parents at positions ``pids``.
+
+    ``max_arity > 0`` also builds, for levels whose groups have at most that many children, the
+    fixed-arity form used by :meth:`max_up`: per level the parents' positions and (A, P) child
+    positions, short groups padded with their first child (max is idempotent). ``np.maximum.reduceat``
+    pays a per-group overhead that dominates on binary trees; one gather per child slot does not.
+    """
+
+    def __init__(self, parent: np.ndarray, start, *, max_arity: int = 0):
+        self.parent = parent
+        self.start = start
+        self.groups = [None]
+        self.slots = [None]
+        for k in range(1, len(start) - 1):
+            a, b = int(start[k]), int(start[k + 1])
+            p = parent[a:b]
+            seg = np.flatnonzero(np.r_[True, p[1:] != p[:-1]]) if b > a else np.zeros(0, np.int64)
+            self.groups.append((a, b, seg, p[seg]))
+            self.slots.append(self._slots(a, b, seg, p[seg], max_arity))
+
+    @staticmethod
+    def _slots(a, b, seg, pids, max_arity):
+        if not len(pids) or max_arity <= 0:
+            return None
+        cnt = np.diff(np.r_[seg, b - a])
+        arity = int(cnt.max())
+        if arity > max_arity:
+            return None  # reduceat for this level
+        pos = a + seg
+        child = np.stack([pos + np.minimum(j, cnt - 1) for j in range(arity)]).astype(np.intp)
+        return pids.astype(np.intp), child
+
+    @classmethod
+    def from_depth(cls, parent: np.ndarray, depth: np.ndarray, **kw) -> "Levels":
+        """Levels of a tree numbered breadth first with (non-decreasing) ``depth`` per node."""
+        return cls(parent, np.searchsorted(depth, np.arange(int(depth[-1]) + 2)), **kw)
+
+    def reduce_up(self, arr: np.ndarray, ufunc, *, include_self: bool = False) -> np.ndarray:
+        """Bottom-up, deepest level first: every node with children gets ``ufunc.reduce`` of its
+        children (``include_self``: combined with its own value). In place; returns ``arr``."""
+        for k in range(len(self.groups) - 1, 0, -1):
+            a, b, seg, pids = self.groups[k]
+            if not len(pids):
+                continue
+            red = ufunc.reduceat(arr[a:b], seg, axis=0)
+            arr[pids] = ufunc(arr[pids], red) if include_self else red
+        return arr
+
+    def max_up(self, key: np.ndarray) -> np.ndarray:
+        """``key[parent] = max(key[parent], max key[children])``, deepest level first: each key becomes
+        the maximum over its subtree [LH01 fn 2]. In place; equal to ``reduce_up(key, np.maximum,
+        include_self=True)`` (max is exact), with one gather per child slot where slots were built."""
+        for k in range(len(self.groups) - 1, 0, -1):
+            sl = self.slots[k]
+            if sl is None:
+                a, b, seg, pids = self.groups[k]
+                if len(pids):
+                    key[pids] = np.maximum(key[pids], np.maximum.reduceat(key[a:b], seg))
+                continue
+            pids, child = sl
+            m = key.take(pids)
+            for row in child:
+                np.maximum(m, key.take(row), out=m)
+            key[pids] = m
+        return key
+
+    def spread_down(self, arr: np.ndarray, ufunc) -> np.ndarray:
+        """Top-down, level by level: ``arr[i] = ufunc(arr[i], arr[parent[i]])`` (``np.logical_or``: a
+        flag spreads to the whole subtree; ``np.logical_and``: closes a set under ancestors). In place."""
+        par = self.parent
+        for k in range(1, len(self.groups)):
+            a, b = self.groups[k][:2]
+            arr[a:b] = ufunc(arr[a:b], arr[par[a:b]])
+        return arr
