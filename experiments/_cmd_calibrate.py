@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from experiments._paths import check_output
 from pmetric import PlodError, make_model
+
 
 def _parse_list(text: str, what: str) -> np.ndarray:
     try:
@@ -74,8 +75,10 @@ def register(subparsers) -> None:
     p.add_argument("--area", type=float, default=float("nan"), help="stimulus area, deg2")
     p.add_argument("--rate-db", type=float, default=6.0, help="fade-in rate, dB of contrast per second")
     p.add_argument("--reaction-time", type=float, default=0.4, help="reaction time, s")
-    p.add_argument("--rule", default="3down1up", help="staircase rule (1down1up .. 4down1up)")
-    p.add_argument("--trials", type=int, default=80, help="staircase trials per stimulus")
+    p.add_argument("--rule", default=None,
+                   help="staircase rule (1down1up .. 4down1up; default 3down1up); needs --method staircase")
+    p.add_argument("--trials", type=int, default=None,
+                   help="staircase trials per stimulus (default 80); needs --method staircase")
     p.add_argument("--repeats", type=int, default=1, help="sessions per grid point")
     p.add_argument("--out", type=Path, required=True, help="output CSV path")
     p.set_defaults(func=run)
@@ -94,16 +97,19 @@ def run(args) -> int:
     for name, val in (("--luminance", args.luminance), ("--area", args.area)):
         if not math.isnan(val) and not (val > 0 and math.isfinite(val)):
             raise PlodError(f"{name} must be a positive number, got {val}")
+    if args.method != "staircase":
+        for flag, val in (("--rule", args.rule), ("--trials", args.trials)):
+            if val is not None:
+                raise PlodError(f"{flag} applies to --method staircase only; the fade-in method has no {flag[2:]}")
+    rule = "3down1up" if args.rule is None else args.rule
+    trials = 80 if args.trials is None else args.trials
+    if args.observer_seed < 0:
+        raise PlodError(f"--observer-seed must be >= 0, got {args.observer_seed}")
+    check_output("--out", args.out, suffixes=(".csv",), inputs=(args.model_file, args.model))
     if args.model_file is not None and not args.model_file.is_file():
         raise PlodError(f"--model-file {args.model_file} does not exist")
     model = make_model(args.model_file if args.model_file is not None else args.model)
-    inputs = [Path(m) for m in (args.model_file, args.model) if m is not None and Path(m).is_file()]
     out = args.out
-    for inp in inputs:
-        if out.exists() and os.path.samefile(out, inp) or out.resolve() == inp.resolve():
-            raise PlodError(f"--out {out} is an input file; refusing to overwrite it")
-    if out.is_dir():
-        raise PlodError(f"--out {out} is a directory")
     f, e, v = parse_grid(args.grid)
     stimuli = stimulus_grid(f, e, v, luminance=args.luminance, area=args.area)
     slope = math.inf if args.noise == 0 else 1.0 / args.noise
@@ -113,11 +119,11 @@ def run(args) -> int:
         if args.method == "fade":
             parts.append(fade_in_session(observer, stimuli, args.rate_db, args.reaction_time))
         else:
-            parts.append(staircase_2afc(observer, stimuli, rule=args.rule, trials=args.trials))
+            parts.append(staircase_2afc(observer, stimuli, rule=rule, trials=trials))
     data = CalibrationData.concatenate(parts)
     if len(data) == 0:
         raise PlodError("no grating of the grid was visible to the simulated observer; nothing written")
-    data.to_csv(out)
+    data.to_csv(out)  # CalibrationData.to_csv writes atomically
     print(f"wrote {len(data)} of {len(stimuli) * args.repeats} simulated thresholds "
           f"({args.method}, {type(model).__name__}, seed {args.observer_seed}) to {out}")
     return 0

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import warnings
 from pathlib import Path
 
+from experiments._paths import check_output
 from pmetric import PlodError, make_model
+
+# emcee's autocorrelation estimate needs >= 3 kept steps per walker (nsteps 1, 2: NaN, cryptic error)
+MIN_MCMC_STEPS = 3
 
 
 def register(subparsers) -> None:
@@ -61,16 +64,34 @@ def run(args) -> int:
         raise PlodError("--conservative needs --method mcmc")
     data_path = Path(args.data)
     if args.out is not None:
-        out = Path(args.out)
-        if data_path.exists() and out.exists() and os.path.samefile(out, data_path):
-            raise PlodError(f"refusing to overwrite the input file {str(data_path)!r}; choose another --out")
-        if out.is_dir():
-            raise PlodError(f"--out {str(out)!r} is a directory; give a file name such as fitted.json")
+        check_output("--out", args.out, suffixes=(".json",),
+                     inputs=(("the input data", data_path), ("the input model", args.model)))
+    if args.method == "mcmc":
+        if args.nsteps < MIN_MCMC_STEPS:
+            raise PlodError(f"--nsteps must be >= {MIN_MCMC_STEPS} for --method mcmc (the sampler needs "
+                            f"{MIN_MCMC_STEPS} steps per walker to estimate the autocorrelation time), got {args.nsteps}")
+        if args.nwalkers < 1:
+            raise PlodError(f"--nwalkers must be >= 1, got {args.nwalkers}")
+    if args.seed < 0:
+        raise PlodError(f"--seed must be >= 0, got {args.seed}")
     data = optim.fit.CalibrationData.from_csv(data_path)
     model = make_model(args.model)
     fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None
     rows = None if args.all_rows else "auto"
-    report: dict = {"model": type(model).__name__, "data": str(data_path), "method": args.method}
+    from optim.fit._problem import Problem
+
+    prob = Problem(model, data, fit=fit, multipliers=args.multipliers, rows=rows)  # host-side layout only
+    n_in, n_used, n_free = len(data), int(prob.mask.sum()), int(prob.static.n_free)
+    n_f0 = int(((np.asarray(data.f) == 0) & ~prob.mask).sum())
+    dropped = (f"used {n_used} of {n_in} rows: dropped {n_in - n_used} the model cannot express"
+               + (f" ({n_f0} with s_frequency 0)" if n_f0 else "")
+               + f"; rules: {'; '.join(prob.reasons)} (--all-rows keeps them)") if n_used < n_in else None
+    if n_used < n_free + 1:
+        raise PlodError(f"{n_used} usable data rows (of {n_in}) cannot fit {n_free} free constants with any "
+                        f"uncertainty: need at least {n_free + 1} rows; give more data or fewer --fit fields")
+    report: dict = {"model": type(model).__name__, "data": str(data_path), "method": args.method,
+                    "n_input_rows": n_in, "n_dropped_rows": n_in - n_used, "n_dropped_zero_frequency": n_f0,
+                    "dropped_rows": dropped}
     if args.method == "lm":
         res = optim.fit_least_squares(model, data, solver=args.solver, backend=args.backend,
                                       multipliers=args.multipliers, fit=fit, rows=rows)
@@ -104,6 +125,8 @@ def run(args) -> int:
                     for n, m, a, b in zip(post.param_names, post.median(), lo, hi)},
         )
         text = post.summary() + ("" if post.warning is None else f"\nwarning: {post.warning}")
+    if dropped is not None:
+        text = f"{dropped}\n{text}"
     if args.out is not None:
         pmetric.save_model(fitted, args.out)
         report["out"] = str(args.out)

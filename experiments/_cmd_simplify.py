@@ -1,10 +1,11 @@
 """``plod simplify``: simplify one mesh for one view, to a triangle budget or imperceptibly.
 
 Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (built once and cached
-by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``) -> view (default: the object subtends about
-30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node keys (``optim.score``) -> cut
-(``optim.budget_cut`` or ``optim.imperceptible_cut``) -> ``optim.extract`` -> write ``--out``
-atomically (never over the input).
+by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``; an empty ``PLOD_CACHE``: no cache) -> view
+(default: the object subtends about 30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node
+keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut``) ->
+``optim.extract`` -> write ``--out`` atomically (never over the input; every output path is checked
+by ``experiments._paths.check_output`` before any work).
 
 Units: ``--fov`` and ``--screen-deg`` deg, ``--distance-m`` m, ``--gaze`` pixels of the image (x right,
 y down, origin top-left), ``--gaze-error`` deg. Perceptual keys are viewing-distance multiples
@@ -57,7 +58,9 @@ def register(sub) -> None:
                    help=f"model name (see plod models), eccentric(NAME) or a fitted model .json "
                         f"(default {DEFAULT_MODEL})")
     p.add_argument("--method", choices=("qem", "octree"), default="qem", help="vertex tree builder (default qem)")
-    p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
+    p.add_argument("--no-cache", action="store_true",
+                   help="do not read or write the tree cache (kept in $PLOD_CACHE, default ~/.cache/plod; "
+                        "PLOD_CACHE set to an empty string also means no cache)")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
     p.add_argument("--render", metavar="OUT.png", default=None,
                    help="render original and simplified for this view, with their FLIP difference, to a PNG")
@@ -123,10 +126,12 @@ def _display(screen_deg, distance_m):
                            black_level=float(d.black_level))
 
 
-def cache_dir() -> Path:
-    """``$PLOD_CACHE`` or ``~/.cache/plod``."""
+def cache_dir() -> Path | None:
+    """``$PLOD_CACHE``, or ``~/.cache/plod`` when it is unset; None (no cache) when it is set but empty."""
     env = os.environ.get("PLOD_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "plod"
+    if env is None:
+        return Path.home() / ".cache" / "plod"
+    return Path(env) if env.strip() else None
 
 
 def _file_key(path: Path, method: str) -> str:
@@ -152,8 +157,9 @@ def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: 
     import optim
 
     entry = None
-    if use_cache:
-        entry = cache_dir() / f"{_file_key(path, method)}.npz"
+    root = cache_dir() if use_cache else None
+    if root is not None:
+        entry = root / f"{_file_key(path, method)}.npz"
         if entry.is_file():
             try:
                 return optim.load_tree(entry), "hit", 0.0
@@ -208,14 +214,11 @@ def _outputs(args, mesh_path: Path):
     budget = _budget(args.budget) if args.budget is not None else None
     if args.imperceptible and args.metric != "perceptual":
         raise PlodError("--imperceptible needs --metric perceptual (keys in viewing-distance multiples)")
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        if out.suffix.lower() not in (".ply", ".obj", ".off", ".stl", ".glb"):
-            what = out.suffix or "a file without suffix"
-            raise PlodError(f"--out: cannot write {what!r}; use .ply, .obj, .off, .stl or .glb")
-        if mesh_path.exists() and out.exists() and os.path.samefile(out, mesh_path):
-            raise PlodError(f"--out {str(out)!r} is the input mesh; choose another output path")
-    render_path = Path(args.render) if args.render else None
+    from experiments._paths import MESH_SUFFIXES, check_output
+
+    inputs = (("the input mesh", mesh_path), ("the input model", args.model))
+    out = check_output("--out", args.out, suffixes=MESH_SUFFIXES, inputs=inputs) if args.out else None
+    render_path = check_output("--render", args.render, suffixes=(".png",), inputs=inputs) if args.render else None
     render_size = None
     if render_path is not None:
         if render_path.suffix.lower() != ".png":

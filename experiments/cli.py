@@ -17,6 +17,10 @@ import warnings
 
 from pmetric import PlodError  # noqa: F401  (the library's one error type, re-exported)
 
+CACHE_HELP = ("environment: PLOD_CACHE=DIR keeps compiled XLA programs (DIR/xla) and plod simplify's vertex "
+              "trees in DIR (default ~/.cache/plod); PLOD_CACHE set to an empty string means no cache at all; "
+              "PLOD_NO_XLA_CACHE=1 turns off only the XLA cache.")
+
 # Subcommand modules, in the order they appear in ``plod --help``.
 COMMANDS = ["demo", "fit", "calibrate", "simplify", "models"]
 
@@ -25,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plod",
         description="Perceptually driven level of detail: which simplifications can a viewer not see?",
+        epilog=CACHE_HELP,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
@@ -36,7 +41,7 @@ def _enable_compile_cache() -> None:
     """Keep XLA's compiled programs between runs (``$PLOD_CACHE/xla``, default ``~/.cache/plod/xla``).
 
     A command-line run compiles the same scoring and model programs every time; the persistent cache
-    reuses them from the second run on. ``PLOD_NO_XLA_CACHE=1`` turns it off.
+    reuses them from the second run on. ``PLOD_NO_XLA_CACHE=1`` or an empty ``PLOD_CACHE`` turns it off.
     """
     import os
     from pathlib import Path
@@ -45,7 +50,10 @@ def _enable_compile_cache() -> None:
         return
     import jax
 
-    root = Path(os.environ.get("PLOD_CACHE") or Path.home() / ".cache" / "plod")
+    env = os.environ.get("PLOD_CACHE")
+    if env is not None and env.strip() == "":
+        return  # PLOD_CACHE set but empty: no cache at all (see CACHE_HELP)
+    root = Path(env) if env is not None else Path.home() / ".cache" / "plod"
     try:
         (root / "xla").mkdir(parents=True, exist_ok=True)
     except OSError:

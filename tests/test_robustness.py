@@ -1,5 +1,6 @@
 """Issue 13 (no silent wrong answers, no touched inputs): output permissions and temporary files,
-mesh text encodings, budget arguments, off-screen gaze points."""
+mesh text encodings, budget arguments, off-screen gaze points, and the `plod` command line (output paths
+checked before any work, inputs never touched, bad sampler settings, dropped rows, an empty PLOD_CACHE)."""
 
 from __future__ import annotations
 
@@ -210,3 +211,117 @@ def test_gaze_on_the_image_edges_and_directions_past_it_are_accepted():
     assert v.gaze_px.shape == (3, 2)
     d = optim.View(eye=(0, 0, 5), gaze=[3.0, 0.0, -1.0])  # 72 deg right: off the screen, but a real gaze
     assert d.gaze_px[0, 0] > d.width
+
+
+# ---------------------------------------------------------------------------------------------- 6 CLI
+# Output paths are checked before any work; inputs are never touched; bad numbers name the flag.
+
+
+@pytest.fixture
+def cli_files(tmp_path, monkeypatch):
+    """A tiny mesh, a small CSV (5 zero-frequency rows + 30 gratings), a saved model, a 2-row CSV."""
+    import pmetric
+    from optim.fit import CalibrationData
+
+    monkeypatch.setenv("PLOD_CACHE", str(tmp_path / "cache"))
+    mesh = tmp_path / "in.ply"
+    optim.save_mesh(mesh, *optim.icosphere(2))
+    f = np.concatenate([np.zeros(5), np.geomspace(0.5, 20, 30)])
+    csv = tmp_path / "cal.csv"
+    CalibrationData.from_arrays(f, log_threshold=-2.0 + 0.1 * np.log10(np.maximum(f, 0.1)) ** 2).to_csv(csv)
+    few = tmp_path / "few.csv"  # 2 rows for KellyAbstract's 2 constants: an exact fit, no uncertainty
+    CalibrationData.from_arrays([2.0, 4.0], log_threshold=-2.0).to_csv(few)
+    model = tmp_path / "start.json"
+    pmetric.save_model(pmetric.KellyAbstract(), model)
+    (tmp_path / "afile.ply").write_bytes(b"not a folder")
+    return {"dir": tmp_path, "mesh": mesh, "csv": csv, "few": few, "model": model}
+
+
+def _snapshot(d):
+    return {p: p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def _cli_fails(capsys, files, argv, *msgs):
+    from experiments.cli import main
+
+    before = _snapshot(files["dir"])
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for m in msgs:
+        assert m in err, err
+    after = _snapshot(files["dir"])
+    assert after == before, "an input was changed or an output written"  # byte-identical, nothing new
+    return err
+
+
+def test_cli_fit_refuses_its_own_model_and_non_json_outputs(capsys, cli_files):
+    c, m, d = cli_files["csv"], cli_files["model"], cli_files["dir"]
+    _cli_fails(capsys, cli_files, ["fit", c, "--model", m, "--out", m], "--out", "the input model", "overwrite")
+    _cli_fails(capsys, cli_files, ["fit", c, "--model", "kellyabstract", "--out", c], "the input data")
+    _cli_fails(capsys, cli_files, ["fit", c, "--model", "kellyabstract", "--out", d / "x.ply"], "--out", ".json")
+
+
+@pytest.mark.parametrize("case", ["file-parent", "directory", "proc", "missing-folder", "suffix"])
+def test_cli_simplify_output_paths_checked_before_work(capsys, cli_files, case):
+    d, mesh = cli_files["dir"], cli_files["mesh"]
+    bad = {"file-parent": ["--out", d / "afile.ply" / "x.ply"], "directory": ["--out", d / "sub.ply"],
+           "proc": ["--out", d / "ok.ply", "--render", "/proc/x.png"],
+           "missing-folder": ["--render", d / "nope" / "x.png"], "suffix": ["--render", d / "x.jpg"]}[case]
+    if case == "directory":
+        (d / "sub.ply").mkdir()
+    t0 = time.perf_counter()
+    err = _cli_fails(capsys, cli_files, ["simplify", mesh, "--budget", "50", *bad], bad[-2])
+    assert time.perf_counter() - t0 < 5.0  # before the tree is built or anything rendered
+    assert not (d / "ok.ply").exists() and "plod-tmp" not in err
+    assert not (d / "cache").exists()
+
+
+def test_cli_calibrate_output_checked_and_fade_rejects_staircase_flags(capsys, cli_files):
+    d = cli_files["dir"]
+    _cli_fails(capsys, cli_files, ["calibrate", "--simulate", "--out", d / "afile.ply" / "x.csv"], "not a folder")
+    _cli_fails(capsys, cli_files, ["calibrate", "--simulate", "--out", d / "x.json"], "--out", ".csv")
+    for flag, val in (("--rule", "2down1up"), ("--trials", "40")):
+        _cli_fails(capsys, cli_files, ["calibrate", "--simulate", flag, val, "--out", d / "s.csv"],
+                   flag, "--method staircase")
+    _cli_fails(capsys, cli_files, ["calibrate", "--simulate", "--observer-seed", "-1", "--out", d / "s.csv"],
+               "--observer-seed must be >= 0")
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--method", "mcmc", "--nsteps", "1"], "--nsteps must be >= 3"),
+    (["--method", "mcmc", "--nsteps", "2"], "--nsteps must be >= 3"),
+    (["--method", "mcmc", "--seed", "-1"], "--seed must be >= 0"),
+])
+def test_cli_fit_bad_sampler_settings(capsys, cli_files, argv, msg):
+    _cli_fails(capsys, cli_files, ["fit", cli_files["csv"], "--model", "kellyabstract", *argv], msg)
+
+
+def test_cli_fit_reports_dropped_rows_and_refuses_too_few(capsys, cli_files):
+    import json
+
+    from experiments.cli import main
+
+    assert main(["fit", str(cli_files["csv"]), "--model", "kellyabstract", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["n_input_rows"] == 35 and rep["n_rows"] == 30 and rep["n_dropped_rows"] == 5
+    assert rep["n_dropped_zero_frequency"] == 5 and "s_frequency 0" in rep["dropped_rows"]
+    assert main(["fit", str(cli_files["csv"]), "--model", "kellyabstract"]) == 0
+    assert "used 30 of 35 rows: dropped 5" in capsys.readouterr().out
+    _cli_fails(capsys, cli_files, ["fit", cli_files["few"], "--model", "kellyabstract"],
+               "2 usable data rows", "2 free constants", "need at least 3 rows")
+
+
+def test_cli_empty_plod_cache_means_no_cache(capsys, cli_files, monkeypatch):
+    import json
+
+    from experiments import cli
+    from experiments._cmd_simplify import cache_dir
+
+    monkeypatch.setenv("PLOD_CACHE", "")
+    monkeypatch.setenv("HOME", str(cli_files["dir"] / "home"))
+    assert cache_dir() is None
+    assert cli.main(["simplify", str(cli_files["mesh"]), "--budget", "50", "--json", "--method", "octree"]) == 0
+    assert json.loads(capsys.readouterr().out)["tree_cache"] == "off"
+    assert not (cli_files["dir"] / "home").exists()
+    assert "empty string means no cache" in " ".join(cli.build_parser().format_help().split())
