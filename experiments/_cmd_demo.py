@@ -70,7 +70,7 @@ def simplification(subdivisions: int, budget_fraction: float) -> dict:
 
     vertices, faces, colors = optim.bumpy_sphere(subdivisions, seed=0, colors=True)
     t0 = time.perf_counter()
-    tree = optim.build_tree(vertices, faces, colors=colors, method="qem")
+    tree = optim.build_tree(vertices, faces, colors=colors)
     build_ms = 1e3 * (time.perf_counter() - t0)
     view = optim.View.framing(vertices)
     model = pmetric.default_model()

@@ -42,18 +42,19 @@ def _timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
-def _views(vertices, n: int):
+def _views(vertices, n: int, lighting=None):
     import optim
 
     out = []
     for i in range(n):
         az = 2 * np.pi * i / n
         d = (np.sin(az), 0.25, np.cos(az))
-        out.append(optim.View.framing(vertices, 30.0, direction=d))
+        out.append(optim.View.framing(vertices, 30.0, direction=d, lighting=lighting))
     return out
 
 
-def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metric, progress, con, repeat=3):
+def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metric, progress, con, repeat=3,
+               lighting=None):
     import optim
 
     rec = {"mesh": name, "triangles": int(faces.shape[0]), "metric": metric}
@@ -61,8 +62,9 @@ def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metri
     rec["nodes"] = tree.n_nodes
     budget = int(budget_fraction * tree.n_triangles)
     rec["budget"] = budget
-    views = _views(tree.vertices, n_views)
-    # first view: per-tree context, model table and XLA compilation (reported, not in the medians)
+    views = _views(tree.vertices, n_views, lighting)
+    # first view: per-tree context (cull columns, normal cones, relit columns), model table and XLA
+    # compilation (reported, not in the medians)
     _, rec["first_view_s"], _ = _timed(lambda: optim.score(tree, views[0], metric=metric))
     rows = []
     task = progress.add_task(f"{name}: views", total=len(views))
@@ -97,7 +99,8 @@ def bench_mesh(name, vertices, faces, *, method, n_views, budget_fraction, metri
 
 
 def report(recs, args) -> str:
-    cmd = "`.venv/bin/python -m experiments.bench_optim" + (" --quick" if args.quick else "") + "`"
+    cmd = ("`.venv/bin/python -m experiments.bench_optim" + (" --quick" if args.quick else "")
+           + (f" --lighting {args.lighting}" if args.lighting != "relit" else "") + "`")
     lines = [
         "# bench_optim: per-view update (score + budget cut + extract) vs meshoptimizer",
         "",
@@ -107,8 +110,10 @@ def report(recs, args) -> str:
         f"machine). {args.views} views around each object (framed at 30 deg of a 46 deg screen, "
         "gaze at the screen centre, 1 deg gaze error), perceptual keys with the default model "
         f"(`optim._score.default_model`), budget {args.budget_fraction:.0%} of the input triangles, "
-        f"tree method `{args.method}`. Best of {args.repeat} runs per view, medians over the views; the "
-        "first view (tree context, model table, XLA compilation) is listed separately. meshoptimizer: "
+        f"tree method `{args.method}`, lighting `{args.lighting}` (relit: the views carry `optim.Lighting()`, "
+        f"fold contrast from the normal cones). Best of {args.repeat} runs per view, medians over the views; the "
+        "first view (tree context: cull columns, normal cones, relit columns; model table; XLA compilation) "
+        "is listed separately. meshoptimizer: "
         "`meshoptimizer.simplify` of the full mesh to the same triangle count, best of 2. Wall time and "
         "process CPU time (CPU time is the robust figure on a shared machine).",
         "",
@@ -148,8 +153,12 @@ def main(argv=None) -> int:
     ap.add_argument("--views", type=int, default=8, help="views per mesh (default 8)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per view; the best counts (default 3)")
     ap.add_argument("--budget-fraction", type=float, default=0.1, help="budget as a fraction of the input")
-    ap.add_argument("--method", choices=("qem", "octree"), default="qem", help="tree builder (default qem)")
+    ap.add_argument("--method", choices=("meshopt", "qem", "octree"), default="meshopt",
+                    help="tree builder (default meshopt)")
     ap.add_argument("--metric", choices=("perceptual", "size", "geometric"), default="perceptual")
+    ap.add_argument("--lighting", choices=("relit", "baked"), default="relit",
+                    help="relit (default): the views carry optim.Lighting(), fold contrast from the normal "
+                         "cones; baked: the tree's pre-lit intensities")
     ap.add_argument("--with-tree", action="store_true", help="also run experiments.bench_tree (its own report)")
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench_optim.md"))
     args = ap.parse_args(argv)
@@ -176,7 +185,8 @@ def main(argv=None) -> int:
             con.print(f"mesh {name}: {f.shape[0]:,} triangles")
             recs.append(bench_mesh(name, v, f, method=args.method, n_views=args.views,
                                    budget_fraction=args.budget_fraction, metric=args.metric,
-                                   progress=progress, con=con, repeat=args.repeat))
+                                   progress=progress, con=con, repeat=args.repeat,
+                                   lighting=optim.Lighting() if args.lighting == "relit" else None))
     out = atomic_write_text(args.out, report(recs, args))
     con.print(f"wrote {out}")
     if args.with_tree:

@@ -22,7 +22,7 @@ CACHE_HELP = ("environment: PLOD_CACHE=DIR keeps compiled XLA programs (DIR/xla)
               "PLOD_NO_XLA_CACHE=1 turns off only the XLA cache.")
 
 # Subcommand modules, in the order they appear in ``plod --help``.
-COMMANDS = ["demo", "fit", "calibrate", "simplify", "models"]
+COMMANDS = ["demo", "fit", "calibrate", "simplify", "judge", "models"]
 
 
 def build_parser() -> argparse.ArgumentParser:

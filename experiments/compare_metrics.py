@@ -65,7 +65,7 @@ DEFAULTS = {
     ],
     # subdivisions of the procedural optim.bumpy_sphere(n, colors=True) mesh (always run); 0 = none
     "procedural": 6,
-    "method": "qem",
+    "method": "meshopt",
     "model": DEFAULT_MODEL,  # any name of `plod models`, eccentric(NAME) or a fitted .json
     "budgets": [0.02, 0.05, 0.10, 0.20, 0.40],  # fractions of the input triangles
     "object_deg": 30.0,
@@ -105,8 +105,8 @@ def check_config(cfg: dict) -> dict:
         raise PlodError(f"config key 'procedural' must be 0 (none) .. 8 subdivisions, got {cfg['procedural']!r}")
     if not cfg["meshes"] and cfg["procedural"] == 0:
         raise PlodError("config: no meshes ('meshes' is empty and 'procedural' is 0)")
-    if cfg["method"] not in ("qem", "octree"):
-        raise PlodError(f"config key 'method' must be 'qem' or 'octree', got {cfg['method']!r}")
+    if cfg["method"] not in ("meshopt", "qem", "octree"):
+        raise PlodError(f"config key 'method' must be 'meshopt', 'qem' or 'octree', got {cfg['method']!r}")
     if cfg["repeats"] < 1:
         raise PlodError(f"config key 'repeats' must be >= 1, got {cfg['repeats']!r}")
     for key in ("object_deg", "gaze_error_deg", "weight_frequency", "comparison_budget"):
@@ -130,15 +130,9 @@ def load_model(name: str):
 # ----------------------------------------------------------------------------- pieces
 def gaze_view(vertices, offset_deg: float, cfg):
     """The framed view with the gaze ``offset_deg`` to the right of the object centre (screen centre)."""
-    import optim
+    from experiments.judge import offset_gaze_view
 
-    base = optim.View.framing(vertices, object_deg=cfg["object_deg"], gaze_error_deg=cfg["gaze_error_deg"])
-    if offset_deg == 0:
-        return base
-    # a gaze direction (not a pixel): 29 deg is past the edge of a 46-deg screen, where pixel gazes are refused
-    d = base.rotation.T @ np.array([math.tan(math.radians(offset_deg)), 0.0, -1.0])
-    return optim.View.framing(vertices, object_deg=cfg["object_deg"], gaze_error_deg=cfg["gaze_error_deg"],
-                              gaze=d[None])
+    return offset_gaze_view(vertices, offset_deg, object_deg=cfg["object_deg"], gaze_error_deg=cfg["gaze_error_deg"])
 
 
 def eccentricity_weights(view, model, size, weight_frequency: float) -> np.ndarray:
@@ -185,7 +179,7 @@ def _baselines(V, F, C, budgets, repeats, progress, task):
     """{(method, budget): ((vertices, faces, colors), ms)} of the view-independent decimators."""
     base = {}
     for b in budgets:
-        faces_mo, ms = _median_time(lambda: meshopt_simplify(V, F, b), repeats)
+        faces_mo, ms = _median_time(lambda: meshopt_simplify(V, F, b, C), repeats)
         base[("meshoptimizer", b)] = (compact(V, faces_mo, C), ms)
         (pv, pf), ms = _median_time(lambda: fast_simplify(V, F, b), repeats)
         pc = None

@@ -1,6 +1,7 @@
 """The peers plod is compared with: view-independent simplifiers run to a triangle count.
 
-* :func:`meshopt_simplify`: meshoptimizer's ``simplify`` (its error bound lifted so the count decides);
+* :func:`meshopt_simplify`: meshoptimizer's ``simplify`` (its error bound lifted so the count decides),
+  ``simplify_with_attributes`` on the vertex colours when the mesh has them;
 * :func:`fast_simplify`: fast-simplification's quadric decimation;
 * :func:`compact`: drop the vertices a simplified face list no longer uses.
 
@@ -21,15 +22,14 @@ def compact(vertices, faces, colors=None):
     return vertices[used], inv.reshape(-1, 3).astype(np.int32), None if colors is None else colors[used]
 
 
-def meshopt_simplify(vertices, faces, target):
-    """meshoptimizer's simplify to ``target`` triangles: faces (T', 3) int64 into ``vertices``."""
-    import meshoptimizer
+def meshopt_simplify(vertices, faces, target, colors=None):
+    """meshoptimizer's simplify to ``target`` triangles: faces (T', 3) int64 into ``vertices``. With
+    ``colors`` (V, 3) its ``simplify_with_attributes`` keeps colour edges too (weight
+    ``optim._meshopt_tree.COLOR_WEIGHT``; the call with its ctypes argument types declared lives there,
+    beside the hierarchy built from it)."""
+    from optim._meshopt_tree import meshopt_simplify as simplify
 
-    idx = np.ascontiguousarray(faces, dtype=np.uint32).ravel()
-    pos = np.ascontiguousarray(vertices, dtype=np.float32)
-    dest = np.empty_like(idx)
-    n = meshoptimizer.simplify(dest, idx, pos, target_index_count=3 * int(target), target_error=1.0)
-    return dest[:n].reshape(-1, 3).astype(np.int64)
+    return simplify(vertices, faces, target, colors)
 
 
 def fast_simplify(vertices, faces, target):

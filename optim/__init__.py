@@ -1,10 +1,11 @@
 """optim: vertex hierarchies, per-view perceptual scoring, simplification cuts and model fitting.
 
 Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) -> build the hierarchy
-(``_tree``, built by ``_build``; clustering in ``_octree`` / ``_qem``, normal cube in ``_normal_cube``, level-by-level
-propagation in ``_levels``) -> view (``_view``) -> score folds (``_score``: classify -> terms -> key ->
-propagate, over the per-tree ``_context`` and the per-node ``_terms``) -> select and extract (``_cut``);
-fitting of model constants in ``optim.fit``.
+(``_tree``, built by ``_build``; clustering in ``_meshopt_tree`` (default) / ``_qem`` / ``_octree``, normal cube in
+``_normal_cube``, level-by-level propagation in ``_levels``) -> view (``_view``, with its lights) -> score folds
+(``_score``: classify -> terms -> key -> propagate, over the per-tree ``_context``, what a renderer shows in
+``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``); fitting of model
+constants in ``optim.fit``.
 """
 
 # Each private module adds its public names below (one import line per module).
@@ -14,9 +15,12 @@ from ._shapes import bumpy_sphere, bumpy_torus, grid_mesh, icosphere
 from ._normal_cube import normal_cell_directions, normal_cells
 from ._tree import Lighting, VertexTree, load_tree, mesh_hash, vertex_luminance
 from ._build import build_tree
+from ._meshopt_tree import MeshoptHierarchy, meshopt_parents
 from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut, min_nonempty_budget, repair_monotone,
                    threshold_cut)
+from ._flips import Flips, cut_flips
 from ._view import View
 from ._context import ScoringContext, scoring_context
+from ._relight import cull_columns, normal_cones, relit_columns, slab_half_width
 from ._score import NodeTerms, node_terms, score, default_model
 from .fit import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc

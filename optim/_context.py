@@ -37,8 +37,12 @@ _FIELDS = ("parent", "child_start", "child_count", "center", "radius", "lum_min"
 
 class _Chunk(eqx.Module):
     """Device arrays of up to ``_CHUNK`` internal nodes (breadth-first order): flat float32 columns
-    ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units), ``lum_min``, ``lum_max``,
-    ``fold_delta`` (relative luminance), ``geom_error`` (object units); normal masks (48 bytes = 12
+    ``cx, cy, cz`` bounding-sphere centre and ``radius`` (object units), ``cull_radius`` the radius of
+    the frustum test (object units, :func:`optim._relight.cull_columns`), ``ax, ay, az`` the normal
+    cone's axis and ``cone_cos``, ``cone_sin`` its half-angle's cosine and sine (the half-angle capped
+    at 90 deg) over the faces the fold touches, ``lum_min``, ``lum_max``,
+    ``fold_delta`` (relative luminance), ``geom_error`` and ``slab`` (the half-width of the slab holding
+    the fold, :func:`optim._relight.slab_half_width`; object units); normal masks (48 bytes = 12
     uint32 words) as ``word_idx``, ``word_val`` (C, 2): the (up to) two nonzero words of each mask,
     ``wide`` (W,) positions of masks with more nonzero words and ``wide_mask`` (W, 12) their full
     masks; ``nonempty`` (C,) bool."""
@@ -47,10 +51,17 @@ class _Chunk(eqx.Module):
     cy: jax.Array
     cz: jax.Array
     radius: jax.Array
+    cull_radius: jax.Array
+    ax: jax.Array
+    ay: jax.Array
+    az: jax.Array
+    cone_cos: jax.Array
+    cone_sin: jax.Array
     lum_min: jax.Array
     lum_max: jax.Array
     fold_delta: jax.Array
     geom_error: jax.Array
+    slab: jax.Array
     word_idx: jax.Array
     word_val: jax.Array
     wide: jax.Array
@@ -193,23 +204,71 @@ def _chunks(cols: dict, mask: np.ndarray, m: int):
     return tuple(chunks), tuple(sizes)
 
 
+def _scene_lum(lum_min, lum_max) -> tuple:
+    return (float(np.clip(np.min(lum_min), 0, 1)), float(np.clip(np.max(lum_max), 0, 1)))
+
+
 def _build(tree) -> ScoringContext:
     n = _check_tree(tree)
     node, levels = _internal_levels(tree, n)
     center = np.asarray(tree.center, np.float32)[node]
-    mask = np.ascontiguousarray(np.asarray(tree.normal_mask, np.uint8)[node]).view("<u4")
+    if isinstance(tree, VertexTree):  # what a fold can touch (culled folds are not free)
+        from ._relight import cull_columns
+
+        from ._relight import slab_half_width
+
+        from ._relight import normal_cones
+
+        mask, cull_radius, half = cull_columns(tree)
+        axis = normal_cones(tree)[0]
+        slab = slab_half_width(tree)
+    else:  # a bare tree-like object: its own masks and spheres; vertex displacement as the slab; no cone
+        mask, cull_radius, slab = tree.normal_mask, tree.radius, tree.geom_error
+        axis, half = np.zeros((n, 3), np.float32), np.full(n, np.pi, np.float32)
+    mask = np.ascontiguousarray(np.asarray(mask, np.uint8)[node]).view("<u4")
     lum_min, lum_max = np.asarray(tree.lum_min, np.float32), np.asarray(tree.lum_max, np.float32)
     cols = dict(cx=center[:, 0], cy=center[:, 1], cz=center[:, 2], radius=np.asarray(tree.radius)[node],
+                cull_radius=np.asarray(cull_radius)[node], ax=axis[node, 0], ay=axis[node, 1], az=axis[node, 2],
+                cone_cos=np.cos(np.minimum(half[node], np.pi / 2)), cone_sin=np.sin(np.minimum(half[node], np.pi / 2)),
                 lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(tree.fold_delta)[node],
-                geom_error=np.asarray(tree.geom_error)[node])
+                geom_error=np.asarray(tree.geom_error)[node], slab=np.asarray(slab)[node])
     chunks, sizes = _chunks(cols, mask, len(node))
-    scene = (float(np.clip(lum_min.min(), 0, 1)), float(np.clip(lum_max.max(), 0, 1)))
+    scene = _scene_lum(lum_min, lum_max)
     return ScoringContext(chunks, tuple(_host_masks(ch) for ch in chunks), sizes, levels, node, n, scene)
 
 
-def scoring_context(tree) -> ScoringContext:
+def _relit(tree, base: ScoringContext, lighting) -> ScoringContext:
+    """``base`` with the luminance columns of :func:`optim._relight.relit_columns` (same shapes: the
+    per-view programs are not recompiled)."""
+    from ._relight import relit_columns
+
+    cols = relit_columns(tree, lighting)
+    chunks, a = [], 0
+    for ch, n in zip(base.chunks, base.sizes):
+        sl = base.node[a:a + n]
+        pad = ch.radius.shape[0] - n
+        col = lambda k: jnp.asarray(np.concatenate([cols[k][sl], np.zeros(pad, np.float32)]))  # noqa: E731
+        chunks.append(dataclasses.replace(ch, lum_min=col("lum_min"), lum_max=col("lum_max"),
+                                          fold_delta=col("fold_delta")))
+        a += n
+    return dataclasses.replace(base, chunks=tuple(chunks), scene_lum=_scene_lum(cols["lum_min"], cols["lum_max"]))
+
+
+def scoring_context(tree, lighting=None) -> ScoringContext:
     """The device arrays :func:`optim.score` needs for ``tree``: built once, cached on an
-    :class:`optim.VertexTree` (other tree-like objects are rebuilt on every call)."""
-    if isinstance(tree, VertexTree):
-        return tree.derived("scoring_context", lambda: _build(tree))
-    return _build(tree)
+    :class:`optim.VertexTree` (other tree-like objects are rebuilt on every call). ``lighting``
+    (an :class:`optim.Lighting`, from ``View.lighting``) swaps in the columns of a renderer relighting
+    the mesh with it (:func:`optim._relight.relit_columns`); None keeps the tree's pre-lit or colour
+    luminance (the seeds' baked case)."""
+    if not isinstance(tree, VertexTree):
+        if lighting is not None:
+            raise PlodError("score: relit scoring (View.lighting) needs an optim.VertexTree")
+        return _build(tree)
+    base = tree.derived("scoring_context", lambda: _build(tree))
+    if lighting is None:
+        return base
+    from ._tree import Lighting
+
+    light = Lighting.coerce(lighting)
+    key = tuple(sorted(light.to_dict().items()))
+    return tree.derived(f"scoring_context.relit.{key}", lambda: _relit(tree, base, light))

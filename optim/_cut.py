@@ -306,7 +306,13 @@ def extract(tree, cut):
     Returns:
         ``(vertices (V', 3) float64, faces (T', 3) int32, colors (V', 3) float32 or None)``.
     """
-    unf = _unfolded_mask(tree, cut)
+    return _extract_parts(tree, _unfolded_mask(tree, cut))[:3]
+
+
+def _extract_parts(tree, unf):
+    """:func:`extract` of a checked (N,) bool ``unfolded`` and the input triangle of each output face:
+    ``(vertices, faces, colors, keep (T',) intp ascending)``, ``faces[i]`` being input triangle
+    ``keep[i]`` with its corners replaced by their representatives (shared with :mod:`optim._flips`)."""
     V, T = tree.n_vertices, tree.n_triangles
     # Work proportional to the cut, plus a few O(V) fills: the kept triangles are the subtris of the
     # unfolded nodes (contiguous per node); the highest folded nodes (folded, parent unfolded) are the
@@ -334,7 +340,7 @@ def extract(tree, cut):
     bnd = bnd.take(order)
     size = tree.leaf_hi.take(bnd) - lo.take(order)
     if int(size.sum()) != V:  # not closed under ancestors: the leaf ranges do not tile 0..V-1
-        return _extract_reference(tree, unf)
+        return _reference_parts(tree, unf)
     fb = np.repeat(np.arange(nb, dtype=np.int32), size).take(corner_lp.take(keep, axis=0))  # (T', 3) boundary ids
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
@@ -354,15 +360,15 @@ def extract(tree, cut):
         colors = tree.color.take(nodes, axis=0)
         if tree.colors is not None:
             colors[leaf] = tree.colors.take(out_v.take(leaf), axis=0)
-    return verts, faces, colors
+    return verts, faces, colors, keep
 
 
-def _unfolded_mask(tree, cut) -> np.ndarray:
+def _unfolded_mask(tree, cut, who: str = "extract") -> np.ndarray:
     """The (N,) bool ``unfolded`` array of a :class:`Cut` or of the array itself (checked)."""
     unf = np.asarray(cut.unfolded if isinstance(cut, Cut) else cut)
     N = tree.n_nodes
     if unf.shape != (N,) or unf.dtype != np.bool_:
-        raise PlodError(f"extract: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
+        raise PlodError(f"{who}: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
     return unf
 
 
@@ -389,7 +395,11 @@ def _extract_index_fast(tree):
 def _extract_reference(tree, cut):
     """Reference form of :func:`extract` (every node, vertex and triangle, O(N + V + T) per call);
     the tests check that :func:`extract` returns the identical arrays."""
-    unf = _unfolded_mask(tree, cut)
+    return _reference_parts(tree, _unfolded_mask(tree, cut))[:3]
+
+
+def _reference_parts(tree, unf):
+    """:func:`_extract_reference` plus ``keep``, as :func:`_extract_parts` returns them."""
     V = tree.n_vertices
     # highest folded nodes (folded, parent unfolded): each leaf lies under exactly one; their
     # depth-first leaf ranges tile 0..V-1, so a forward fill maps every leaf position to its node
@@ -421,7 +431,7 @@ def _extract_reference(tree, cut):
     if tree.color is not None:
         colors = tree.colors.take(out_v, axis=0) if tree.colors is not None else tree.color.take(nodes, axis=0)
         colors[inner] = tree.color.take(nodes.take(inner), axis=0)
-    return verts, faces, colors
+    return verts, faces, colors, keep
 
 
 def _extract_index(tree):

@@ -43,8 +43,8 @@ from pmetric._numerics import div_or_zero
 
 from ._context import scoring_context
 from ._normal_cube import table_device
-from ._terms import (contrast_pair, classify, extent, eccentricity, facing_flags, facing_host, facing_rows,
-                     frustum_culled, select_contrast, terms, terms_jit, view_params, Terms, _geometry)
+from ._terms import (band_width, contrast_pair, classify, extent, eccentricity, facing_flags, facing_host,
+                     facing_rows, frustum_culled, cone_facing, terms, terms_jit, view_params, Terms, _geometry)
 
 __all__ = ["score", "node_terms", "NodeTerms", "default_model", "METRICS"]
 
@@ -78,23 +78,64 @@ def _perceptual_table(model) -> np.ndarray:
 class _KeyTable(NamedTuple):
     device: jax.Array
     host: np.ndarray
+    band: tuple  # (M, f*): max over f of f S(f, 0) (cycles/deg) and where it is (cycles/deg)
+
+
+def band_constant(model) -> tuple:
+    """``(M, f*)``: ``M = max_f f S(f, 0)`` and its frequency ``f*`` (cycles/deg) for ``model``, on a log
+    grid of 2049 frequencies over [1e-2, 10^2.5] cycles/deg; M rounded up by 1 % (the grid step is
+    0.5 %), f* by one grid step. A band of width ``w`` deg and contrast ``c`` is imperceptible beyond
+    ``2 c w M`` times the viewing distance whatever channel sees it, and the channel that attains it
+    is at ``f*`` (see :func:`thin_band_key`)."""
+    f = np.logspace(-2.0, 2.5, 2049)
+    sens = np.asarray(jax.jit(lambda m, x: m.sensitivity(x, jnp.zeros_like(x)))(model, jnp.asarray(f, jnp.float32)),
+                      np.float64)
+    fs = np.where(np.isfinite(sens), f * sens, 0.0)
+    j = int(np.argmax(fs))
+    return float(fs[j]) * 1.01, float(f[min(j + 1, len(f) - 1)])
+
+
+def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
+    """The key of a silhouette fold whose outline moves within a band of width ``w`` <= ``theta`` (deg).
+
+    A visual channel of half-period ``s`` (frequency ``1 / (2 s)``) averages the band over ``s``: it
+    sees contrast ``c w / s`` at size ``s``, for ``s`` in ``[w, theta]`` (a narrower channel sees at
+    most the band's own contrast ``c``, a wider one no longer fits the node). The fold is
+    imperceptible beyond the largest of those channels' distances, ``max_s k(c w / s, s, e)``. At
+    distance ``k`` the channel of half-period ``s`` has frequency ``f = k / (2 s)`` and sees
+    ``c (2 w f / k) S(f)``, so an interior maximum is at ``f* = argmax f S(f)`` with value
+    ``kc = 2 c w M`` (:func:`band_constant`; at eccentricity 0, where S is largest, so an upper
+    bound), and it lies in the interval only if ``kc <= k_edge = 2 theta f*`` (with eccentricity the
+    peak moves to lower frequencies, so ``k_edge`` still bounds it); otherwise the maximum is at an
+    end, ``k_a = k(c w / theta, theta, e)`` or ``k_b = k(c, w, e)``. Every channel's key is at most
+    the whole-node key ``k_cap = k(c, theta, e)`` (smaller and fainter). So the silhouette key is
+    ``min(k_cap, max(k_a, k_b, min(kc, k_edge)))``, and a silhouette node's key is the larger of it
+    and its own fold's ``k_own``; other nodes keep ``k_own``. ``xp``: jax.numpy or numpy."""
+    inner = xp.minimum(kc, k_edge)
+    thin = xp.minimum(k_cap, xp.maximum(xp.maximum(k_a, k_b), inner))
+    return xp.where(silhouette, xp.maximum(k_own, thin), k_own)
 
 
 _TABLES: dict = {}
 
 
+def _model_key(model) -> tuple:
+    """A hashable identity of ``model``: its type, structure and constants."""
+    leaves = jax.tree_util.tree_leaves(model)
+    return (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
+            tuple(np.asarray(x).tobytes() for x in leaves))
+
+
 def _model_table(model) -> _KeyTable:
     """The key table of ``model`` (device and numpy copies), cached by the model's type and values."""
-    leaves = jax.tree_util.tree_leaves(model)
-    key = (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
-           tuple(np.asarray(x).tobytes() for x in leaves))
+    key = _model_key(model)
     tab = _TABLES.get(key)
     if tab is None:
         if len(_TABLES) > 16:
             _TABLES.clear()
         host = _perceptual_table(model)
         host.flags.writeable = False
-        tab = _TABLES[key] = _KeyTable(jnp.asarray(host), host)
+        tab = _TABLES[key] = _KeyTable(jnp.asarray(host), host, band_constant(model))
     return tab
 
 
@@ -121,65 +162,108 @@ def table_gather(ktab, idx, theta, xp=jnp):
     return xp.where(idx >= 0, theta * xp.take(ktab, idx, mode="clip"), xp.float32(0.0))  # float32 in, float32 out
 
 
-_table_lookup = jax.jit(table_gather)
 
 
 # ----------------------------------------------------------------------------------------------
 # key: the programs
+def _thin_parts(c_sil, theta, band):
+    """(contrast c w / theta of the widest channel, 2 c w) of the thin-band silhouette key."""
+    return c_sil * div_or_zero(band, theta), 2.0 * c_sil * band
+
+
 @eqx.filter_jit
 def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
     """``terms`` of a chunk -> (cull flag, what the key needs). Only that leaves the program (per-node
-    arrays of 10^6 nodes no longer fit in cache): with ``table_mode`` the key-table index and theta,
-    else (contrast, theta[, ecc][, vel]) or the pixel key."""
+    arrays of 10^6 nodes no longer fit in cache): with ``table_mode`` the key-table indices of the
+    own, silhouette and thin-band keys, theta, the band width, 2 c w and the silhouette flag; else
+    the contrasts, theta, band, silhouette flag, ecc and vel for the model; or the pixel key."""
     t = terms(ch, vp, facing, has_gaze, has_motion, metric)
     if metric == "perceptual":
+        c_a, kc = _thin_parts(t.contrast, t.theta, t.band)
         if table_mode:
-            return t.culled, (table_index(t.contrast, t.theta, t.ecc), t.theta)
-        return t.culled, (t.contrast, t.theta, t.ecc if has_gaze else None, t.vel if has_motion else None)
+            idx = lambda c, th: table_index(c, th, t.ecc)  # noqa: E731
+            return t.culled, (idx(t.c_own, t.theta), idx(t.contrast, t.theta), idx(c_a, t.theta),
+                              idx(t.contrast, t.band), t.theta, t.band, kc, t.silhouette)
+        return t.culled, (t.c_own, t.contrast, t.theta, t.band, t.silhouette, t.ecc if has_gaze else None,
+                          t.vel if has_motion else None)
     return t.culled, (t.size_px if metric == "size" else t.err_px,)
 
 
 @eqx.filter_jit
-def _exact_key(model, inputs, metric, has_gaze, has_motion):
+def _exact_key(model, inputs, metric, has_gaze, has_motion, band_m):
     """``key`` without the key table (``exact=True``, motion, pixel metrics): raw key (C,) float32 >= 0.
-    A separate XLA program: fused with ``terms``, XLA:CPU recomputes shared intermediates."""
+    A separate XLA program: fused with ``terms``, XLA:CPU recomputes shared intermediates. With
+    motion the thin-band bound is not used (``band_m`` is a bound at velocity 0): a silhouette fold
+    keeps its whole-node key."""
     if metric == "perceptual":
-        contrast, theta, ecc, vel = inputs
-        key = model.imperceptible_distance(contrast, theta, ecc if has_gaze else 0.0, vel if has_motion else 0.0)
-        key = jnp.where(jnp.isnan(key), 1e30, jnp.minimum(key, 1e30))
+        c_own, c_sil, theta, band, sil, ecc, vel = inputs
+        e = ecc if has_gaze else 0.0
+        v = vel if has_motion else 0.0
+        clean = lambda k: jnp.where(jnp.isnan(k), 1e30, jnp.minimum(k, 1e30))  # noqa: E731
+        dist = lambda c, th: clean(model.imperceptible_distance(c, th, e, v))  # noqa: E731
+        k_own, k_cap = dist(c_own, theta), dist(c_sil, theta)
+        if has_motion:
+            key = jnp.where(sil, jnp.maximum(k_own, k_cap), k_own)
+        else:
+            c_a, kc = _thin_parts(c_sil, theta, band)
+            key = thin_band_key(k_own, k_cap, dist(c_a, theta), dist(c_sil, band), kc * band_m[0],
+                                2.0 * theta * band_m[1], sil)
     else:
         key = inputs[0]
     return jnp.maximum(key, 0.0).astype(jnp.float32)
 
 
+@jax.jit
+def _table_keys_device(ktab, band_m, i_own, i_sil, i_a, i_b, theta, band, kc, sil):
+    """Table mode in XLA: the same keys as :func:`_table_keys_host`."""
+    g = lambda i, th: table_gather(ktab, i, th)  # noqa: E731
+    return thin_band_key(g(i_own, theta), g(i_sil, theta), g(i_a, theta), g(i_b, band), kc * band_m[0],
+                         2.0 * theta * band_m[1], sil)
+
+
 @eqx.filter_jit
 def _table_inputs(ch, vp, has_gaze):
     """Table mode, ``terms`` in one XLA program without gathers: the silhouette-table word positions
-    (C, 2) int32 of each node, the key-table index of its own and of its silhouette contrast (the
-    ``select_contrast`` choice between them is made in numpy once the facing flags are known), theta,
-    and the frustum cull flag; the same term functions as :func:`optim._terms.terms`."""
+    (C, 2) int32 of each node, the key-table indices of its own, its silhouette and its thin-band
+    contrasts (the ``select_contrast`` choice between them is made in numpy once the facing flags are
+    known), theta, the band width, 2 c w and the frustum cull flag; the same term functions as
+    :func:`optim._terms.terms`."""
     g = _geometry(ch, vp)
     _, theta = extent(vp, g)
     ecc = eccentricity(vp, g, theta) if has_gaze else jnp.zeros_like(theta)
     c_own, c_sil = contrast_pair(ch, vp)
+    band = band_width(ch, vp, g, theta)
+    c_a, kc = _thin_parts(c_sil, theta, band)
     widx = facing_rows(ch, vp)[:, None] * 12 + ch.word_idx
-    return (widx, table_index(c_own, theta, ecc), table_index(c_sil, theta, ecc), theta,
-            frustum_culled(ch, vp, g))
+    idx = lambda c, th: table_index(c, th, ecc)  # noqa: E731
+    cone_front, cone_back = cone_facing(ch, vp, g)
+    return (widx, idx(c_own, theta), idx(c_sil, theta), idx(c_a, theta), idx(c_sil, band), theta, band, kc,
+            frustum_culled(ch, vp, g), cone_front & cone_back)
 
 
 def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
     """Raw key (M,) float32 and cull flag (M,) bool, table mode: ``classify`` and the table gathers
-    in numpy (the same values as the XLA path of :func:`_raw_keys` with ``fast=False``)."""
+    in numpy (the same values as the XLA path of :func:`_raw_keys` with ``fast=False``); the
+    thin-band gathers only for silhouette nodes."""
     outs = [_table_inputs(ch, vp, has_gaze) for ch in ctx.chunks]  # dispatch all chunks first
     key = np.empty(ctx.m, np.float32)
     culled = np.empty(ctx.m, bool)
+    tab = ktab.host
     a = 0
     for hm, n, out in zip(ctx.host_masks, ctx.sizes, outs):
-        widx, i_own, i_sil, theta, out_of_view = (np.asarray(x)[:n] for x in out)
+        widx, i_own, i_sil, i_a, i_b, theta, band, kc, out_of_view, cone_both = (np.asarray(x)[:n] for x in out)
         front, back = facing_host(widx, hm, n)
         b = a + n
-        culled[a:b], _, sil = classify(hm.nonempty[:n], front, back, out_of_view)
-        key[a:b] = table_gather(ktab.host, select_contrast(sil, i_own, i_sil, np), theta, np)
+        culled[a:b], _, sil = classify(hm.nonempty[:n], front, back, out_of_view, (cone_both, cone_both))
+        k = table_gather(tab, i_own, theta, np)
+        s = np.flatnonzero(sil)
+        if s.size:
+            th, bd = theta[s], band[s]
+            m_band, f_star = (np.float32(x) for x in ktab.band)
+            k[s] = thin_band_key(k[s], table_gather(tab, i_sil[s], th, np), table_gather(tab, i_a[s], th, np),
+                                 table_gather(tab, i_b[s], bd, np), kc[s] * m_band, np.float32(2.0) * th * f_star,
+                                 True, np)
+        key[a:b] = k
         a = b
     return key, culled
 
@@ -193,17 +277,34 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=True):
     if table_mode and fast:
         return _table_keys_host(ctx, vp, ktab, has_gaze)
     table = table_device()
+    band_m = (0.0, 0.0)
+    if metric == "perceptual" and not has_motion:
+        band_m = ktab.band if ktab is not None else _model_band(model)
+    band_m = jnp.asarray(band_m, jnp.float32)
     outs = []
     for ch in ctx.chunks:
         culled, inputs = _key_inputs(ch, vp, facing_flags(ch, vp, table), metric, has_gaze, has_motion, table_mode)
         if table_mode:
-            key = _table_lookup(ktab.device, inputs[0], inputs[1])
+            key = _table_keys_device(ktab.device, band_m, *inputs)
         else:
-            key = _exact_key(model, inputs, metric, has_gaze, has_motion)
+            key = _exact_key(model, inputs, metric, has_gaze, has_motion, band_m)
         outs.append((key, culled))
     sz = ctx.sizes
     return (np.concatenate([np.asarray(k)[:n] for (k, _), n in zip(outs, sz)]),
             np.concatenate([np.asarray(c)[:n] for (_, c), n in zip(outs, sz)]))
+
+
+_BANDS: dict = {}
+
+
+def _model_band(model) -> tuple:
+    """:func:`band_constant` of ``model``, cached like the key tables."""
+    key = _model_key(model)
+    if key not in _BANDS:
+        if len(_BANDS) > 16:
+            _BANDS.clear()
+        _BANDS[key] = band_constant(model)
+    return _BANDS[key]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -227,7 +328,9 @@ class NodeTerms(NamedTuple):
     the frustum, wholly back facing, or below such a node), ``backfacing``, ``silhouette`` (bool);
     ``size_px`` projected bounding-sphere diameter (pixels); ``theta`` its visual angle (deg);
     ``eccentricity`` (deg); ``velocity`` retinal velocity (deg/s); ``contrast`` Michelson contrast of
-    the fold."""
+    the fold (a silhouette node's: its silhouette contrast); ``own_contrast`` the contrast of the
+    fold's own luminance change; ``band_deg`` the width (deg) of the band a silhouette fold can
+    change (its slab projected, at most ``theta``)."""
 
     culled: np.ndarray
     backfacing: np.ndarray
@@ -237,6 +340,8 @@ class NodeTerms(NamedTuple):
     eccentricity: np.ndarray
     velocity: np.ndarray
     contrast: np.ndarray
+    own_contrast: np.ndarray
+    band_deg: np.ndarray
 
 
 def default_model():
@@ -250,7 +355,7 @@ def default_model():
 def node_terms(tree, view) -> NodeTerms:
     """Cull flags, silhouette flags, angular size, eccentricity, velocity and contrast of every node
     for ``view`` (the inputs of the perceptual key; see :mod:`optim._terms` for units)."""
-    ctx = scoring_context(tree)
+    ctx = scoring_context(tree, getattr(view, "lighting", None))
     vp = view_params(view, ctx.scene_lum)
     has_gaze, has_motion = view.gaze_px is not None, view.previous is not None
     table = table_device()
@@ -259,7 +364,8 @@ def node_terms(tree, view) -> NodeTerms:
                 for f in Terms._fields))
     culled = _spread_culled(ctx, t.culled)
     return NodeTerms(*(ctx.to_tree(a, False if a.dtype == bool else 0.0)
-                       for a in (culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc, t.vel, t.contrast)))
+                       for a in (culled, t.backfacing, t.silhouette, t.size_px, t.theta, t.ecc, t.vel, t.contrast,
+                                 t.c_own, t.band)))
 
 
 def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = False) -> np.ndarray:
@@ -276,7 +382,7 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
     """
     if metric not in METRICS:
         raise PlodError(f"score: metric must be one of {METRICS}, got {metric!r}")
-    ctx = scoring_context(tree)
+    ctx = scoring_context(tree, getattr(view, "lighting", None))
     vp = view_params(view, ctx.scene_lum)
     ktab = None
     if metric == "perceptual":

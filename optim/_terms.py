@@ -9,7 +9,8 @@ Scoring runs in named stages, per chunk of internal nodes (flat jax columns, :cl
   face both ways are silhouettes.
 * ``terms`` (:func:`terms`, from the term functions below):
 
-  - :func:`frustum_culled`: sphere wholly outside a side plane of the frustum or before the near plane;
+  - :func:`frustum_culled`: sphere wholly outside a side plane of the frustum or before the near plane
+    (the sphere holding every triangle the fold touches, :func:`optim._relight.cull_columns`);
   - :func:`extent`: projected bounding-sphere diameter (pixels) and its visual angle ``theta`` (deg;
     the fold's lowest frequency is ``1 / (2 theta)`` cycles/deg [LH01 §3.1]);
   - :func:`eccentricity`: angle (deg) between the node's image and the nearest gaze point minus half of
@@ -20,7 +21,8 @@ Scoring runs in named stages, per chunk of internal nodes (flat jax columns, :cl
     silhouette nodes the node's luminance range against the scene's brightest and darkest values,
     background included [LHNW00 §4.2; LH01 §5.2];
   - :func:`geometric_error`: projected object-space fold error (pixels) at the nearest point of the
-    bounding sphere.
+    bounding sphere; :func:`band_width`: the width (deg) of the band a silhouette fold can change
+    (its slab, projected; the thin-band silhouette key of :mod:`optim._score`).
 
 * ``key`` and ``propagate``: :mod:`optim._score`.
 """
@@ -142,11 +144,13 @@ def _geometry(ch, vp: ViewParams) -> _Geometry:
 # ----------------------------------------------------------------------------------------------
 # classify: normal masks against the silhouette table
 def facing_rows(ch, vp: ViewParams):
-    """Row of the silhouette table (margin level, view-direction bin) of every node (C,) int32."""
+    """Row of the silhouette table (margin level, view-direction bin) of every node (C,) int32: the
+    margin covers the view directions to every face the fold touches (the sphere of ``cull_radius``)."""
     g = _geometry(ch, vp)
+    s = jnp.clip(div_or_zero(ch.cull_radius, g.dist), 0.0, 1.0)  # every face the fold touches
     margins = np.sin(np.radians(_MARGINS_DEG[:-1])).astype(np.float32)
-    level = sum((g.s > float(mk)).astype(jnp.int32) for mk in margins)
-    level = jnp.where(g.inside, len(_MARGINS_DEG) - 1, level)
+    level = sum((s > float(mk)).astype(jnp.int32) for mk in margins)
+    level = jnp.where(g.dist <= ch.cull_radius, len(_MARGINS_DEG) - 1, level)
     dx, dy, dz = g.d
     return level * _ROWS_PER_MARGIN + dir_bins(-dx, -dy, -dz)
 
@@ -188,21 +192,41 @@ def facing_host(widx: np.ndarray, hm, n: int):
     return front, back
 
 
-def classify(nonempty, front, back, out_of_view):
-    """(culled, backfacing, silhouette) (jax or numpy) from the facing flags and
-    :func:`frustum_culled`: a wholly back-facing node [LHNW00 §4.3] or one out of view is culled; a
-    node that may face both ways is a silhouette node [LHNW00 §4.2]."""
+def cone_facing(ch, vp: ViewParams, g: _Geometry):
+    """(possibly front facing, possibly back facing) (C,) bool from the normal cone of the faces the
+    fold touches (axis ``ax, ay, az``, half-angle ``b``: ``cone_cos``, ``cone_sin``) and the view
+    directions to the sphere of ``cull_radius`` (angular radius ``r``): with ``a`` the angle from the
+    axis to the direction to the eye, a face can face the eye iff ``a - b - r < 90 deg`` and away iff
+    ``a + b + r > 90 deg``; both when ``b + r >= 90 deg`` or the eye is in the sphere."""
+    s = jnp.clip(div_or_zero(ch.cull_radius, g.dist), 0.0, 1.0)
+    c = jnp.sqrt(jnp.maximum(1.0 - s * s, 0.0))
+    sin_g = ch.cone_sin * c + ch.cone_cos * s  # sin(b + r)
+    wide = (ch.cone_cos * c - ch.cone_sin * s <= 0.0) | (g.dist <= ch.cull_radius)  # b + r >= 90 deg
+    dx, dy, dz = g.d
+    cos_a = -div_or_zero(ch.ax * dx + ch.ay * dy + ch.az * dz, g.dist)
+    return wide | (cos_a > -sin_g), wide | (cos_a < sin_g)
+
+
+def classify(nonempty, front, back, out_of_view, cone=None):
+    """(culled, backfacing, silhouette) (jax or numpy) from the facing flags of the normal masks,
+    :func:`frustum_culled` and those of the cone (:func:`cone_facing`, or None): a wholly back-facing
+    node [LHNW00 §4.3] by its mask or one out of view is culled; a node whose mask and cone may both
+    face both ways is a silhouette node [LHNW00 §4.2]."""
     backfacing = nonempty & ~front
-    return out_of_view | backfacing, backfacing, front & back
+    sil = front & back
+    if cone is not None:
+        sil = sil & cone[0] & cone[1]
+    return out_of_view | backfacing, backfacing, sil
 
 
 # ----------------------------------------------------------------------------------------------
 # terms
 def frustum_culled(ch, vp: ViewParams, g: _Geometry):
-    """Sphere wholly outside a side plane of the frustum or before the near plane, and the eye not
-    inside it (C,) bool."""
+    """The sphere of radius ``cull_radius`` (holding every triangle the fold touches) wholly outside a
+    side plane of the frustum or before the near plane, and the eye not inside the node's sphere (C,)
+    bool."""
     tan_x, tan_y, near = vp.scal[1], vp.scal[2], vp.scal[3]
-    r = ch.radius
+    r = ch.cull_radius
     x, y, depth = g.x, g.y, g.depth
     ix, iy = jax.lax.rsqrt(1 + tan_x * tan_x), jax.lax.rsqrt(1 + tan_y * tan_y)
     outside = ((depth + r < near)
@@ -282,6 +306,15 @@ def geometric_error(ch, vp: ViewParams, g: _Geometry):
     return jnp.where(g.inside, size_cap, jnp.minimum(focal * ch.geom_error / near_d, size_cap))
 
 
+def band_width(ch, vp: ViewParams, g: _Geometry, theta):
+    """Angular width (deg) of the band of the image a silhouette fold can change: the slab that holds
+    the region and the fan replacing it (``2 slab``, :func:`optim._relight.slab_half_width`) projected
+    at the nearest point of the bounding sphere, at most ``theta``."""
+    focal, near, dpp = vp.scal[0], vp.scal[3], vp.scal[5]
+    near_d = jnp.maximum(g.dist - ch.radius, near)
+    return jnp.where(g.inside, theta, jnp.minimum(2.0 * focal * ch.slab / near_d * dpp, theta))
+
+
 class Terms(NamedTuple):
     culled: jax.Array
     backfacing: jax.Array
@@ -292,21 +325,26 @@ class Terms(NamedTuple):
     vel: jax.Array
     contrast: jax.Array
     err_px: jax.Array
+    c_own: jax.Array
+    band: jax.Array
 
 
 def terms(ch, vp: ViewParams, facing, has_gaze: bool, has_motion: bool, need: str) -> Terms:
     """All terms of every node of a chunk, given the ``classify`` flags ``facing`` = (front, back).
     ``need`` (``"perceptual"``, ``"size"``, ``"geometric"``) skips what the metric does not use (0)."""
     g = _geometry(ch, vp)
-    culled, backfacing, silhouette = classify(ch.nonempty, facing[0], facing[1], frustum_culled(ch, vp, g))
+    culled, backfacing, silhouette = classify(ch.nonempty, facing[0], facing[1], frustum_culled(ch, vp, g),
+                                              cone_facing(ch, vp, g))
     size_px, theta = extent(vp, g)
     zero = jnp.zeros_like(ch.radius)
     perceptual = need == "perceptual"
     ecc = eccentricity(vp, g, theta) if has_gaze and perceptual else zero
     vel = velocity(ch, vp, g) if has_motion and perceptual else zero
-    contrast = select_contrast(silhouette, *contrast_pair(ch, vp)) if perceptual else zero
+    c_own, c_sil = contrast_pair(ch, vp) if perceptual else (zero, zero)
+    contrast = select_contrast(silhouette, c_own, c_sil) if perceptual else zero
     err_px = geometric_error(ch, vp, g) if need == "geometric" else zero
-    return Terms(culled, backfacing, silhouette, size_px, theta, ecc, vel, contrast, err_px)
+    band = band_width(ch, vp, g, theta) if perceptual else zero
+    return Terms(culled, backfacing, silhouette, size_px, theta, ecc, vel, contrast, err_px, c_own, band)
 
 
 @eqx.filter_jit

@@ -33,7 +33,7 @@ __all__ = [
 ]
 
 TREE_FORMAT = "plod-vertex-tree-1"
-METHODS = ("qem", "octree")
+METHODS = ("qem", "octree", "meshopt")
 
 # ----------------------------------------------------------------------------------------------
 # intensity
@@ -80,6 +80,25 @@ class Lighting:
         if isinstance(x, (tuple, list)) and len(x) in (1, 2, 3, 4):
             return cls(*x)
         raise PlodError(f"lighting must be None, a Lighting, a dict or a tuple; got {type(x).__name__}")
+
+    @classmethod
+    def from_text(cls, text: str, flag: str = "--light") -> "Lighting":
+        """``"DX,DY,DZ"`` or ``"DX,DY,DZ,AMBIENT"``: direction toward the light (object space) and
+        ambient level in [0, 1] (default 0.15), diffuse ``1 - ambient`` (a surface facing the light is
+        white). ``flag`` names the option in the error message."""
+        parts = [p.strip() for p in str(text).split(",")]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            vals = []
+        if len(vals) not in (3, 4) or not np.all(np.isfinite(vals)):
+            raise PlodError(f"{flag} needs DX,DY,DZ or DX,DY,DZ,AMBIENT (finite numbers), got {text!r}")
+        if np.linalg.norm(vals[:3]) == 0:
+            raise PlodError(f"{flag}: the light direction must be nonzero, got {text!r}")
+        amb = vals[3] if len(vals) == 4 else cls.ambient
+        if not 0.0 <= amb <= 1.0:
+            raise PlodError(f"{flag}: AMBIENT must be in [0, 1], got {amb!r}")
+        return cls(direction=tuple(vals[:3]), ambient=amb, diffuse=1.0 - amb)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -14,6 +14,10 @@ sphere (object units) into the quantities a contrast-sensitivity model takes:
   treated as foveal (eccentricity 0) and the eccentricity term costs nothing;
 * ``gaze_error_deg``: gaze uncertainty (deg) subtracted from every eccentricity [LHNW00 §4.4]:
   about 1 deg for an eye tracker, about 15 deg when head tracking stands in for it [CAVE]);
+* ``lighting``: the scene's light (:class:`optim.Lighting`, directional plus ambient, object space)
+  when the renderer relights the mesh from its own normals: fold contrast then covers what
+  relighting can show (:mod:`optim._relight`). None (default) is the seeds' pre-lit case: the tree's
+  baked vertex intensities or colours are what is displayed;
 * ``previous`` and ``dt_s``: the view one time step (s) earlier, for the retinal velocity (deg/s) of
   each node's image. Without a previous view the velocity term costs nothing.
 
@@ -66,7 +70,7 @@ class View(eqx.Module):
     ``gaze_px`` (G, 2) gaze points in pixels or None (no gaze: eccentricity 0 everywhere);
     ``gaze_error_deg`` (deg); ``background`` relative luminance (0..1) of the background, used for
     silhouette contrast; ``near`` near-plane distance (object units); ``previous`` (View or None) and
-    ``dt_s`` (s).
+    ``dt_s`` (s); ``lighting`` (:class:`optim.Lighting` or None: relit or pre-lit display).
 
     ``gaze`` may be ``"center"`` (default: the screen centre), None, an array (G, 2) of pixel
     coordinates (each on the image: in ``[0, width] x [0, height]``), or an array (G, 3) of gaze
@@ -87,6 +91,7 @@ class View(eqx.Module):
     near: float = eqx.field(static=True)
     previous: "View | None"
     dt_s: float = eqx.field(static=True)
+    lighting: object = eqx.field(static=True)
     _geom: tuple = eqx.field(static=True)  # (pitch x m, pitch y m, distance m, deg per px), cached
 
     def __init__(
@@ -103,6 +108,7 @@ class View(eqx.Module):
         dt_s: float | None = None,
         background: float = 0.0,
         near: float | None = None,
+        lighting=None,
     ):
         import pmetric
 
@@ -156,6 +162,11 @@ class View(eqx.Module):
                 raise PlodError("View: dt_s given without a previous view")
             self.dt_s = 0.0
         self.previous = previous
+        if lighting is not None:
+            from ._tree import Lighting
+
+            lighting = Lighting.coerce(lighting)
+        self.lighting = lighting
         self.gaze_px = self._gaze_pixels(gaze)
 
     @classmethod

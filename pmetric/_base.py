@@ -18,6 +18,7 @@ returns False) and negative inputs give unspecified results. Shapes that do not 
 from __future__ import annotations
 
 import functools
+import inspect
 import types
 from typing import ClassVar
 
@@ -129,12 +130,41 @@ class _BoundCSFMethod(BoundMethod):
                 and self.__self__ is other.__self__)
 
 
+#: the stimulus arguments of the public methods whose invalid entries (NaN or negative) give NaN
+#: results (luminance and area are excluded: NaN there means "unknown, use the model's default")
+_NAN_ARGS = ("f", "e", "v", "c", "theta")
+
+
+def _nan_propagating(fn):
+    """``fn`` with invalid in, NaN out under tracing: concrete NaN or negative inputs are refused by
+    :func:`check_inputs`, but inside ``jax.jit`` they cannot be, and the models' guarded arithmetic
+    would turn them into plausible finite values (0, 1e-30, a clamp: "invisible"). A float result is
+    NaN wherever a stimulus argument (:data:`_NAN_ARGS`) is NaN or negative; a bool result
+    (``is_perceptible``) is False there."""
+    sig = inspect.signature(fn)
+
+    @functools.wraps(fn)
+    def method(self, *args, **kwargs):
+        out = fn(self, *args, **kwargs)
+        bound = sig.bind(self, *args, **kwargs)
+        traced = [x for k, x in bound.arguments.items() if k in _NAN_ARGS and is_tracer(x)]
+        if not traced:
+            return out
+        bad = functools.reduce(jnp.logical_or, (jnp.isnan(x) | (x < 0) for x in traced))
+        if out.dtype == jnp.bool_:
+            return jnp.where(bad, False, out)
+        return jnp.where(bad, jnp.asarray(jnp.nan, out.dtype), out)
+
+    return method
+
+
 class _public:
-    """Decorator of the public methods of :class:`CSFModel`: binds them as :class:`_BoundCSFMethod`.
-    Accessed on the class it gives the plain function (``CSFModel.imperceptible_distance(m, ...)``)."""
+    """Decorator of the public methods of :class:`CSFModel`: binds them as :class:`_BoundCSFMethod`,
+    NaN-propagating under tracing (:func:`_nan_propagating`). Accessed on the class it gives the plain
+    function (``CSFModel.imperceptible_distance(m, ...)``)."""
 
     def __init__(self, fn):
-        self.fn = fn
+        self.fn = _nan_propagating(fn)
         functools.update_wrapper(self, fn)
 
     def __get__(self, obj, objtype=None):

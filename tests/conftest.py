@@ -78,6 +78,11 @@ SLOW_TESTS = frozenset({
     "tests/test_table.py::test_exact_distance_finite_values_and_gradients[float32]",
     "tests/test_table.py::test_exact_distance_random_tables_vs_brute_force",
     "tests/test_inverse.py::test_float32_input_with_python_scalars_under_x64[kelly1979]",
+    *(f"tests/test_nan.py::test_nan_in_nan_out_under_jit[True-{name}]"
+      for name in ("Barten", "Eccentric", "KellyAbstract", "KellySpatioTemporal", "ManosSakrison", "ReddyAcuity",
+                   "StelaCSF")),
+    "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-StelaCSF]",
+    "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-KellySpatioTemporal]",
 })
 
 

@@ -66,7 +66,7 @@ def test_one_row_recomputed_independently(quick):
     cfg = res["config"]
     row = next(r for r in res["records"] if r["method"] == "perceptual" and r["budget_fraction"] == 0.10)
     v, f, c = optim.bumpy_sphere(cfg["procedural"], seed=cfg["seed"], colors=True)
-    tree = optim.build_tree(v, f, colors=c, method="qem")
+    tree = optim.build_tree(v, f, colors=c, method=cfg["method"])
     view = optim.View.framing(tree.vertices, object_deg=30.0, gaze_error_deg=1.0)
     keys = optim.score(tree, view, optim.default_model(), "perceptual")
     cut = optim.budget_cut(tree, keys, int(round(0.10 * tree.n_triangles)))

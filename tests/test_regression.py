@@ -69,7 +69,8 @@ def _views(vertices):
     prev = optim.View.framing(vertices, direction=(0.2, 0.0, 1.0))
     moving = optim.View.framing(vertices, previous=prev, dt_s=1 / 60)
     nogaze = optim.View.framing(vertices, object_deg=45.0, direction=(0.0, 1.0, 0.2), gaze=None, background=0.5)
-    return {"base": base, "side": side, "moving": moving, "nogaze": nogaze}
+    relit = optim.View.framing(vertices, direction=(-0.5, 0.2, 0.8), lighting=optim.Lighting((0.3, 0.8, 0.5), 0.2, 0.8))
+    return {"base": base, "side": side, "moving": moving, "nogaze": nogaze, "relit": relit}
 
 
 def _cut_record(out: dict, key: str, tree, cut) -> None:
@@ -87,7 +88,7 @@ def _cut_record(out: dict, key: str, tree, cut) -> None:
 def _mesh_values(out: dict) -> None:
     models = {"kellyabstract": pm.KellyAbstract(), "eccentric_ms": pm.Eccentric(pm.ManosSakrison())}
     for mname, (v, f, c) in _meshes().items():
-        for method in ("qem", "octree"):
+        for method in ("meshopt", "qem", "octree"):
             tree = optim.build_tree(v, f, colors=c, method=method)
             base = f"mesh/{mname}/{method}"
             out[f"{base}/parent"] = np.asarray(tree.parent)
@@ -98,7 +99,7 @@ def _mesh_values(out: dict) -> None:
                 for model_name, model in models.items():
                     k = optim.score(tree, view, model)
                     out[f"{base}/{vname}/perceptual/{model_name}"] = k
-                    if vname in ("base", "side"):
+                    if vname in ("base", "side", "relit"):
                         out[f"{base}/{vname}/exact/{model_name}"] = optim.score(tree, view, model, exact=True)
                 keys = out[f"{base}/{vname}/perceptual/kellyabstract"]
                 budget = max(4, tree.n_triangles // 5)

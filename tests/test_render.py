@@ -90,3 +90,26 @@ def test_simplify_render_writes_png_and_never_the_input(tmp_path, monkeypatch, c
     assert main(["simplify", str(mesh), "--budget", "200", "--render", str(mesh)]) == 2
     # refused before any work: the render path is the input mesh (and not a .png)
     assert "is the input mesh" in capsys.readouterr().err and mesh.read_bytes() == before
+
+
+def test_back_faces_are_culled_in_both_modes():
+    v, f = optim.grid_mesh(1, 1, (2.0, 2.0))
+    v = v - v.mean(0)
+    view = optim.View.framing(v, 30.0, background=0.0)  # the eye is on +z: the grid faces it
+    for mode in R.MODES:
+        front = _render_or_skip(v, f, None, view, mode=mode, size=SIZE)
+        back = _render_or_skip(v, f[:, ::-1], None, view, mode=mode, size=SIZE)  # reversed winding
+        assert front[SIZE[1] // 2, SIZE[0] // 2].min() > 0.2 and back.max() == 0.0
+
+
+def test_relit_without_diffuse_is_the_baked_colours(sphere_view):
+    v, f, view = sphere_view
+    rng = np.random.default_rng(1)
+    colors = rng.uniform(0.2, 0.9, size=(len(v), 3)).astype(np.float32)
+    flat = optim.Lighting(ambient=1.0, diffuse=0.0)
+    relit = _render_or_skip(v, f, colors, view, lighting=flat, mode="relit", size=SIZE)
+    baked = _render_or_skip(v, f, colors, view, mode="baked", size=SIZE)
+    drawn = np.pad((baked.max(axis=2) > 0) & (relit.max(axis=2) > 0), 1)
+    inner = drawn[1:-1, 1:-1] & drawn[:-2, 1:-1] & drawn[2:, 1:-1] & drawn[1:-1, :-2] & drawn[1:-1, 2:]  # no edges
+    assert inner.sum() > 1000
+    assert np.abs(relit - baked)[inner].max() <= 1.5 / 255  # same interpolation, shading a no-op

@@ -42,6 +42,25 @@ def _supported_triangles(tree, n):
     return np.flatnonzero(on[tree.faces].any(1))
 
 
+def _vertices_triangles(tree, verts):
+    on = np.zeros(tree.n_vertices, bool)
+    on[verts] = True
+    return np.flatnonzero(on[tree.faces].any(1))
+
+
+def _left_cos(tree, n, eye):
+    """:func:`_facing_cos` of the faces a fold of node ``n`` alone leaves (inside corners at its proxy)."""
+    inside = np.zeros(tree.n_vertices, bool)
+    inside[_node_vertices(tree, n)] = True
+    cnt = inside[tree.faces].sum(1)
+    faces = tree.faces[(cnt > 0) & (cnt < 3)]
+    p = np.where(inside[faces][:, :, None], tree.position[n].astype(np.float64), tree.vertices[faces])
+    nn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    d = eye - p.mean(1)
+    ok = np.linalg.norm(nn, axis=1) > 0
+    return (nn[ok] * d[ok]).sum(1) / np.linalg.norm(nn[ok], axis=1) / np.linalg.norm(d[ok], axis=1)
+
+
 def _facing_cos(tree, eye):
     """cos of the angle between each triangle's normal and the direction from its centroid to the eye."""
     p = tree.vertices[tree.faces]
@@ -57,11 +76,14 @@ def test_sphere_rim_nodes_are_silhouette_interior_are_not(sphere_tree):
     rim, interior, back = [], [], []
     for n in tree.internal:
         c = cos[_supported_triangles(tree, n)]
+        # what the fold touches: the faces of the 2-ring of its vertices and the faces it leaves
+        ring = np.unique(tree.faces[_supported_triangles(tree, n)])
+        touched = np.concatenate([cos[_vertices_triangles(tree, ring)], _left_cos(tree, n, EYE)])
         if (c > 0).any() and (c < 0).any():
             rim.append(n)  # supports front- and back-facing triangles: a true silhouette node
-        elif (c > 0.5).all():
-            interior.append(n)  # every normal within 60 deg of the eye direction
-        elif (c < -0.5).all():
+        elif (touched > 0.5).all():
+            interior.append(n)  # every normal it touches within 60 deg of the eye direction
+        elif (touched < -0.5).all():
             back.append(n)
     assert len(rim) > 10 and len(interior) > 10 and len(back) > 10
     assert t.silhouette[rim].all()  # conservative: every rim node is a silhouette node
@@ -186,6 +208,48 @@ def test_keys_are_monotone(sphere_tree, az, el, dist, metric):
     _check_monotone(sphere_tree, score(sphere_tree, View(eye=eye), metric=metric))
 
 
+def _reference_key(model, t, nodes):
+    """The key of each node from its terms, written out: the own fold's distance; for a silhouette,
+    the larger of it and the thin-band key min(k(c, theta), max(k(c w / theta, theta), k(c, w),
+    min(2 c w M, 2 theta f*)))."""
+    from optim._score import band_constant
+
+    m_band, f_star = band_constant(model)
+    d = lambda c, th: np.asarray(model.imperceptible_distance(c, th, t.eccentricity[nodes]), np.float64)  # noqa: E731
+    c, c_own, th, w = t.contrast[nodes], t.own_contrast[nodes], t.theta[nodes], t.band_deg[nodes]
+    k_own = d(c_own, th)
+    inner = np.minimum(2 * c * w * m_band, 2 * th * f_star)
+    thin = np.minimum(d(c, th), np.maximum(np.maximum(d(c * np.where(th > 0, w / np.where(th > 0, th, 1), 0), th),
+                                                      d(c, w)), inner))
+    return np.where(t.silhouette[nodes], np.maximum(k_own, thin), k_own)
+
+
+def test_thin_band_key_bounds_every_channel():
+    """The silhouette key holds the distance of every channel that sees the band (half-period s in
+    [w, theta], contrast c w / s), and is at most the whole node's key."""
+    from optim._score import band_constant, thin_band_key
+
+    model = pmetric.KellyAbstract()
+    m_band, f_star = band_constant(model)
+    rng = np.random.default_rng(3)
+    n = 64
+    theta = 10 ** rng.uniform(-2, 0.5, n)
+    w = theta * 10 ** rng.uniform(-3, 0, n)
+    c = 10 ** rng.uniform(-2, 0, n)
+    e = rng.choice([0.0, 2.0, 10.0], n)
+    d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e), np.float64)  # noqa: E731
+    key = thin_band_key(np.zeros(n), d(c, theta), d(c * w / theta, theta), d(c, w),
+                        2 * c * w * m_band, 2 * theta * f_star, np.ones(n, bool), np)
+    for s_frac in np.linspace(0, 1, 41):
+        s = w * (theta / w) ** s_frac
+        assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
+    assert (key <= d(c, theta) * (1 + 1e-6)).all()
+    # a band that spans the node is the whole node: no reduction
+    full = thin_band_key(np.zeros(n), d(c, theta), d(c, theta), d(c, theta), 2 * c * theta * m_band,
+                         2 * theta * f_star, np.ones(n, bool), np)
+    np.testing.assert_allclose(full, d(c, theta), rtol=1e-6)
+
+
 def test_perceptual_keys_match_the_model(sphere_tree):
     tree = sphere_tree
     model = pmetric.KellyAbstract()
@@ -203,7 +267,7 @@ def test_perceptual_keys_match_the_model(sphere_tree):
     deep = np.array([n for n in tree.internal
                      if (tree.child_count[tree.child_start[n]:tree.child_start[n] + tree.child_count[n]] == 0).all()])
     deep = deep[~t.culled[deep]]
-    want = np.asarray(model.imperceptible_distance(t.contrast[deep], t.theta[deep], t.eccentricity[deep]))
+    want = _reference_key(model, t, deep)
     assert exact[deep] == pytest.approx(want, rel=1e-4, abs=1e-6)
     # farther away, every fold is at most as important (smaller angles, larger frequencies)
     far = score(tree, View(eye=EYE * 3, gaze=[[800.0, 500.0]]), model, exact=True)

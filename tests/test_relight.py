@@ -1,0 +1,230 @@
+"""Lights in the model (optim._relight): normal cones, relit fold contrast, and culled folds that are
+not free. Values are checked against closed forms and brute-force references over the input faces."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import optim
+from optim._mesh import face_normals
+from optim._normal_cube import _unit
+
+
+def _tent(alpha_deg: float, n: int = 8):
+    """A grid folded along x = 0 into a ridge: two planes whose normals lean +-alpha from +z."""
+    v, f = optim.grid_mesh(n, n, (2.0, 2.0))
+    v = v - np.array([1.0, 1.0, 0.0])
+    v[:, 2] = -np.abs(v[:, 0]) * math.tan(math.radians(alpha_deg))
+    return v, f
+
+
+def _supported(tree, node):
+    return tree.leaf_vertex[tree.leaf_lo[node]:tree.leaf_hi[node]]
+
+
+def _incident_faces(tree, verts):
+    return np.flatnonzero(np.isin(tree.faces, verts).any(1))
+
+
+def test_flat_evenly_lit_region_has_no_relit_contrast():
+    v, f = optim.grid_mesh(16, 16)
+    tree = optim.build_tree(v, f)
+    cols = optim.relit_columns(tree, optim.Lighting(direction=(0.3, -0.2, 1.0)))
+    assert np.abs(cols["fold_delta"]).max() < 1e-6
+    view = optim.View.framing(v, 30.0, direction=(0.1, 0.2, 1.0), lighting=optim.Lighting((0.3, -0.2, 1.0)))
+    nt = optim.node_terms(tree, view)
+    assert np.abs(nt.contrast[~nt.silhouette]).max() < 1e-5
+    # the only silhouettes of a plane seen from the front are folds that turn a face over
+    sil = np.flatnonzero(nt.silhouette)
+    assert len(sil) < 0.2 * (tree.child_count > 0).sum()
+    for node in sil:
+        assert _fold_turns_a_face_over(tree, node), node
+
+
+def _left_faces(tree, node, corners=False):
+    """Normals (K, 3) of the faces a fold of ``node`` alone leaves, inside corners at its proxy (and
+    those corners (K, 3, 3) with ``corners``)."""
+    inside = np.zeros(tree.n_vertices, bool)
+    inside[_supported(tree, node)] = True
+    f = tree.faces
+    cnt = inside[f].sum(1)
+    faces = f[(cnt > 0) & (cnt < 3)]
+    p = np.where(inside[faces][:, :, None], tree.position[node].astype(np.float64), tree.vertices[faces])
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return (n, p) if corners else n
+
+
+def _fold_turns_a_face_over(tree, node):
+    return bool((_left_faces(tree, node)[:, 2] < 0).any())
+
+
+def test_tent_fold_toward_the_light_matches_the_closed_form():
+    alpha = 25.0
+    v, f = _tent(alpha)
+    tree = optim.build_tree(v, f)
+    axis, half = optim.normal_cones(tree)
+    np.testing.assert_allclose(axis[0], [0.0, 0.0, 1.0], atol=1e-6)
+    # every face leans exactly alpha from the root's axis; the bottom-up merge may only widen that
+    assert math.radians(alpha) - 1e-5 <= half[0] <= math.radians(alpha) * 1.05
+    light = optim.Lighting(direction=(0.0, 0.0, 1.0), ambient=0.1, diffuse=0.9)
+    cols = optim.relit_columns(tree, light)
+    # the proxy, lit along the axis, is brighter than both facets by diffuse (1 - cos alpha)
+    want = 0.9 * (1 - math.cos(math.radians(alpha)))
+    assert cols["fold_delta"][0] == pytest.approx(want, rel=0.06)
+    assert cols["lum_max"][0] == pytest.approx(1.0, abs=1e-6)
+    # pre-lit with the same light, the vertex intensities span the same range here (flat facets)
+    baked = optim.build_tree(v, f, lighting=light)
+    assert baked.fold_delta[0] == pytest.approx(cols["fold_delta"][0], rel=1e-4)
+    view = optim.View.framing(v, 30.0, gaze=None, lighting=light)
+    relit = optim.node_terms(tree, view)
+    assert relit.contrast[0] > 0.03
+
+
+def test_cones_hold_every_incident_face_normal():
+    v, f = optim.bumpy_sphere(3, amplitude=0.15)
+    tree = optim.build_tree(v, f)
+    axis, half = optim.normal_cones(tree)
+    fu = _unit(face_normals(v, f.astype(np.int64)))
+    rng = np.random.default_rng(0)
+    internal = np.flatnonzero(tree.child_count > 0)
+    for node in rng.choice(internal, 60, replace=False):
+        faces = _incident_faces(tree, _supported(tree, node))
+        ang = np.arccos(np.clip(fu[faces] @ axis[node].astype(np.float64), -1, 1))
+        assert ang.max() <= half[node] + 1e-5
+
+
+@pytest.mark.parametrize("two_sided", [False, True])
+def test_relit_range_holds_the_shading_of_every_incident_face(two_sided):
+    v, f, c = optim.bumpy_sphere(3, colors=True, amplitude=0.15)
+    tree = optim.build_tree(v, f, c)
+    light = optim.Lighting(direction=(0.5, 0.8, -0.3), ambient=0.2, diffuse=0.8, two_sided=two_sided)
+    cols = optim.relit_columns(tree, light)
+    fu = _unit(face_normals(v, f.astype(np.int64)))
+    albedo = optim.vertex_luminance(v, f, c).astype(np.float64)
+    shade = light.intensity(fu).astype(np.float64)
+    rng = np.random.default_rng(1)
+    internal = np.flatnonzero(tree.child_count > 0)
+    for node in rng.choice(internal, 60, replace=False):
+        verts = _supported(tree, node)
+        faces = _incident_faces(tree, verts)
+        a = albedo[verts]
+        assert cols["lum_min"][node] <= a.min() * shade[faces].min() + 1e-6
+        assert cols["lum_max"][node] >= a.max() * shade[faces].max() - 1e-6
+        assert cols["lum_min"][node] <= cols["lum"][node] <= cols["lum_max"][node]
+
+
+def test_ambient_only_light_gives_back_the_colour_columns():
+    v, f, c = optim.bumpy_sphere(3, colors=True)
+    tree = optim.build_tree(v, f, c)
+    cols = optim.relit_columns(tree, optim.Lighting(ambient=1.0, diffuse=0.0))
+    np.testing.assert_allclose(cols["lum_min"], tree.lum_min, atol=2e-6)
+    np.testing.assert_allclose(cols["lum_max"], tree.lum_max, atol=2e-6)
+    np.testing.assert_allclose(cols["fold_delta"], tree.fold_delta, atol=2e-6)
+
+
+def test_relit_scoring_differs_from_baked_and_is_cached():
+    v, f = optim.bumpy_sphere(4)
+    tree = optim.build_tree(v, f)
+    light = optim.Lighting(direction=(-0.6, 0.3, 0.7))
+    baked = optim.View.framing(v, 30.0, direction=(0.2, 0.1, 1.0))
+    relit = optim.View.framing(v, 30.0, direction=(0.2, 0.1, 1.0), lighting=light)
+    kb, kr = optim.score(tree, baked), optim.score(tree, relit)
+    assert not np.array_equal(kb, kr)
+    assert optim.scoring_context(tree, light) is optim.scoring_context(tree, optim.Lighting(direction=(-0.6, 0.3, 0.7)))
+    assert optim.scoring_context(tree) is not optim.scoring_context(tree, light)
+    # the relit keys are those of the exact per-node model call (table within its resolution)
+    ke = optim.score(tree, relit, exact=True)
+    assert np.all(kr >= ke * (1 - 1e-5))
+
+
+def _frustum_outside(pts, view):
+    """Points (K, 3) all beyond one side plane of the view's frustum (or behind the camera)."""
+    cam = (pts - view.eye) @ view.rotation.T
+    depth = -cam[:, 2]
+    tan_y = math.tan(math.radians(view.fov_deg) / 2)
+    tan_x = tan_y * view.width / view.height
+    return bool((depth <= view.near).all() or (cam[:, 0] > tan_x * depth).all() or (-cam[:, 0] > tan_x * depth).all()
+                or (cam[:, 1] > tan_y * depth).all() or (-cam[:, 1] > tan_y * depth).all())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_culled_fold_touches_no_visible_triangle(seed):
+    """Nothing folded for culling may change a visible pixel: every triangle incident to a vertex a
+    culled node supports, or to one of their neighbours (whose vertex normals a renderer
+    interpolates), and every triangle the fold leaves, is back facing at all its corners or wholly
+    outside the frustum."""
+    v, f = optim.bumpy_sphere(4, seed=seed, amplitude=0.12)
+    tree = optim.build_tree(v, f)
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=3)
+    view = optim.View.framing(v, 60.0 + 40 * seed, direction=d)  # large on screen: some nodes off-screen
+    nt = optim.node_terms(tree, view)
+    culled = np.flatnonzero(nt.culled & (tree.child_count > 0) & ~nt.culled[np.maximum(tree.parent, 0)])
+    assert len(culled) > 5
+    fn = face_normals(v, f.astype(np.int64))
+    for node in culled[:200]:
+        verts = _supported(tree, node)
+        ring = np.unique(f[_incident_faces(tree, verts)])
+        faces = _incident_faces(tree, ring)
+        corners = v[f[faces]]  # (K, 3, 3)
+        back = (np.einsum("kj,kij->ki", fn[faces], corners - view.eye) >= 0).all(1)
+        n_left, c_left = _left_faces(tree, node, corners=True)  # ... and so are the faces the fold leaves
+        back_left = (np.einsum("kj,kij->ki", n_left, c_left - view.eye) >= 0).all(1)
+        if back.all() and back_left.all():
+            continue
+        front = np.concatenate([corners[~back].reshape(-1, 3), c_left[~back_left].reshape(-1, 3)])
+        assert _frustum_outside(front, view), f"node {node} touches a visible triangle"
+
+
+def test_light_option_parses_and_rejects_bad_text():
+    light = optim.Lighting.from_text("0,0,2,0.25")
+    assert light.direction == (0.0, 0.0, 2.0) and light.ambient == 0.25 and light.diffuse == 0.75
+    for bad in ("1,2", "a,b,c", "0,0,0", "0,0,1,1.5", "0,0,1,-0.1", "nan,0,1"):
+        with pytest.raises(optim.PlodError if hasattr(optim, "PlodError") else ValueError, match="--light"):
+            optim.Lighting.from_text(bad)
+
+
+def test_simplify_light_flag(tmp_path, capsys):
+    from experiments.cli import main
+
+    v, f = optim.bumpy_sphere(3)
+    mesh = tmp_path / "m.ply"
+    optim.save_mesh(mesh, v, f)
+    env = {"PLOD_CACHE": ""}
+    with pytest.MonkeyPatch.context() as mp:
+        for k, val in env.items():
+            mp.setenv(k, val)
+        assert main(["simplify", str(mesh), "--imperceptible", "--json"]) == 0
+        baked = json.loads(capsys.readouterr().out)
+        assert main(["simplify", str(mesh), "--imperceptible", "--json", "--light", "0.4,0.6,0.7"]) == 0
+        relit = json.loads(capsys.readouterr().out)
+        assert relit["lighting"]["direction"] == [0.4, 0.6, 0.7] and baked["lighting"] == "baked"
+        assert relit["flipped_triangles"] >= 0 and relit["degenerate_triangles"] >= 0
+        assert relit["output_triangles"] != baked["output_triangles"]
+        assert main(["simplify", str(mesh), "--imperceptible", "--light", "1,2"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--light" in err[0]
+
+
+def test_post_fold_masks_match_a_per_node_reference():
+    """The faces each fold leaves (inside corners at the proxy), found by walking corners up to their
+    common ancestor, equal a per-node scan of every face."""
+    from optim._relight import _post_fold_masks
+
+    v, f = optim.bumpy_sphere(3, seed=4, amplitude=0.15)
+    tree = optim.build_tree(v, f)
+    mask, cos_min = _post_fold_masks(tree, np.asarray(tree.vertices), np.asarray(tree.faces, np.int64))
+    axis = optim.normal_cones(tree)[0].astype(np.float64)
+    for node in np.flatnonzero(tree.child_count > 0):
+        n = _left_faces(tree, node)
+        n = n[(n * n).sum(1) > 0]
+        want = np.zeros(6, np.uint64)
+        for c in optim.normal_cells(n):
+            want[c // 64] |= np.uint64(1) << np.uint64(c % 64)
+        np.testing.assert_array_equal(mask[node], want)
+        cw = (n / np.linalg.norm(n, axis=1)[:, None] @ axis[node]).min() if len(n) else 1.0
+        assert cos_min[node] == pytest.approx(cw, abs=1e-9)
