@@ -37,12 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:  # pragma: no cover - run as a script
-    sys.path.insert(0, str(ROOT))
-
-from experiments._runinfo import load_config, repo_path, save_run_info  # noqa: E402
-from pmetric import PlodError, atomic_write_text  # noqa: E402
+from experiments._runinfo import load_config, repo_path, save_run_info
+from pmetric import PlodError, atomic_write_text
 
 DEFAULTS = {
     "out": "reports/accuracy",
@@ -161,18 +157,13 @@ class _Mesh:
 
     def peer(self, method: str, lighting: str, target: int):
         """A view-independent peer's result at ``target`` triangles with the cell's colours."""
-        from experiments.peers import compact, fast_simplify, meshopt_simplify
+        from experiments.peers import compact, fast_simplify, meshopt_simplify, nearest_colors
 
         colors = self.c if lighting == "relit" else self.baked_colors
         if method == "meshoptimizer":
             return compact(self.v, meshopt_simplify(self.v, self.f, target, self.c), colors)
         pv, pf = fast_simplify(self.v, self.f, target)
-        pc = None
-        if colors is not None:  # fast-simplification drops colours: each new vertex takes its nearest input's
-            from scipy.spatial import cKDTree
-
-            pc = colors[cKDTree(self.v).query(pv)[1]]
-        return pv, pf.astype(np.int32), pc
+        return pv, pf.astype(np.int32), nearest_colors(self.v, colors, pv)
 
 
 def _view(mesh: _Mesh, direction, gaze_deg, lighting, cfg, model_lights: bool):
@@ -483,7 +474,7 @@ def worst_images(rows, cfg, out, model_lights=True):
                     lighting=optim.Lighting() if lighting == "relit" else None, size=tuple(cfg["size"]))
         name = f"worst_{method}_{k}.png"
         title = (f"{method} cut, {r['cell']}" + (f", budget {100 * b:g} % (best peer: {peer})" if b else "")
-                 + f": {len(optim.extract(tree, cut)[1]):,} triangles, JOD {res.jod:.3f}")
+                 + f": {cut.triangles:,} triangles, JOD {res.jod:.3f}")
         save_judgement(out / name, res, titles=("original", f"{method}: {cut.triangles:,} triangles"))
         images.append((title, name))
     return images

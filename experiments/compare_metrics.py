@@ -52,7 +52,7 @@ if str(ROOT) not in sys.path:  # pragma: no cover - run as a script
     sys.path.insert(0, str(ROOT))
 
 from experiments._runinfo import repo_path as _rel  # noqa: E402  (after the path set-up of a script run)
-from experiments.peers import compact, fast_simplify, meshopt_simplify  # noqa: E402,F401
+from experiments.peers import compact, fast_simplify, meshopt_simplify, nearest_colors  # noqa: E402,F401
 from pmetric import DEFAULT_MODEL, PlodError, make_model  # noqa: E402
 
 DEFAULTS = {
@@ -182,12 +182,7 @@ def _baselines(V, F, C, budgets, repeats, progress, task):
         faces_mo, ms = _median_time(lambda: meshopt_simplify(V, F, b, C), repeats)
         base[("meshoptimizer", b)] = (compact(V, faces_mo, C), ms)
         (pv, pf), ms = _median_time(lambda: fast_simplify(V, F, b), repeats)
-        pc = None
-        if C is not None:  # fast-simplification drops colours: take each new vertex's nearest input colour
-            from scipy.spatial import cKDTree
-
-            pc = C[cKDTree(V).query(pv)[1]]
-        base[("fast_simplification", b)] = ((pv, pf.astype(np.int32), pc), ms)
+        base[("fast_simplification", b)] = ((pv, pf.astype(np.int32), nearest_colors(V, C, pv)), ms)
         progress.advance(task, 2)
     return base
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["compact", "fast_simplify", "meshopt_simplify"]
+__all__ = ["compact", "fast_simplify", "meshopt_simplify", "nearest_colors"]
 
 
 def compact(vertices, faces, colors=None):
@@ -40,3 +40,13 @@ def fast_simplify(vertices, faces, target):
     return fast_simplification.simplify(np.array(vertices, dtype=np.float64, order="C"),
                                         np.array(faces, dtype=np.int64, order="C"),
                                         target_count=max(int(target), 1))
+
+
+def nearest_colors(vertices, colors, points):
+    """The colour (K, 3) of the input vertex nearest each of ``points`` (K, 3), or None without colours:
+    fast-simplification moves vertices and drops their colours."""
+    if colors is None:
+        return None
+    from scipy.spatial import cKDTree
+
+    return np.asarray(colors)[cKDTree(vertices).query(points)[1]]

@@ -53,12 +53,10 @@ def _linear_to_srgb(u: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices, faces) -> np.ndarray:
     """(V, 3) float64 unit area-weighted vertex normals of a mesh, from its own faces (zero for a
     vertex on no face, or whose faces cancel)."""
-    from optim._mesh import corner_sum, face_normals
+    from optim._normal_cube import _unit
+    from optim._tree import _vertex_normals
 
-    v = np.asarray(vertices, dtype=np.float64)
-    n = corner_sum(np.asarray(faces), face_normals(v, faces), len(v))  # |face normal| = 2 x area
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+    return _unit(_vertex_normals(np.asarray(vertices, dtype=np.float64), np.asarray(faces)))
 
 
 def _vertex_rgb(vertices, faces, colors, lighting) -> np.ndarray:

@@ -30,7 +30,7 @@ import numpy as np
 
 from pmetric import PlodError
 
-from ._levels import Levels
+from ._levels import Levels, level_runs
 from ._mesh import validated_mesh_and_normals
 from ._normal_cube import _unit, normal_cells
 from ._qem import PROXIES
@@ -293,15 +293,9 @@ def _bounds(lv: Levels, v, leaf, vertex_node, center, pos, leaf_lo, nleaf, leaf_
     radius = np.zeros(N)
     geom = np.zeros(N)
     vd = v.take(leaf_vertex, axis=0)  # vertices in depth-first order
-    start = lv.start
-    for d in range(len(start) - 1):
-        s, e = start[d], start[d + 1]
-        nodes = np.arange(s, e)[~leaf[s:e]]
-        if nodes.size == 0:
-            continue
-        lo, sz = leaf_lo.take(nodes), nleaf.take(nodes)
-        off = np.concatenate([[0], np.cumsum(sz)[:-1]])
-        pts = vd.take(np.repeat(lo - off, sz) + np.arange(int(sz.sum())), axis=0)
+    for nodes, idx, off in level_runs(lv.start, leaf_lo, nleaf, ~leaf):
+        pts = vd.take(idx, axis=0)
+        sz = nleaf.take(nodes)
         dc = pts - np.repeat(center.take(nodes, axis=0), sz, axis=0)
         dp = pts - np.repeat(pos.take(nodes, axis=0), sz, axis=0)
         radius[nodes] = np.maximum.reduceat(np.einsum("ij,ij->i", dc, dc), off)

@@ -213,11 +213,7 @@ def _build(tree) -> ScoringContext:
     node, levels = _internal_levels(tree, n)
     center = np.asarray(tree.center, np.float32)[node]
     if isinstance(tree, VertexTree):  # what a fold can touch (culled folds are not free)
-        from ._relight import cull_columns
-
-        from ._relight import slab_half_width
-
-        from ._relight import normal_cones
+        from ._relight import cull_columns, normal_cones, slab_half_width
 
         mask, cull_radius, half = cull_columns(tree)
         axis = normal_cones(tree)[0]
@@ -267,8 +263,6 @@ def scoring_context(tree, lighting=None) -> ScoringContext:
     base = tree.derived("scoring_context", lambda: _build(tree))
     if lighting is None:
         return base
-    from ._tree import Lighting
+    from ._relight import light_key
 
-    light = Lighting.coerce(lighting)
-    key = tuple(sorted(light.to_dict().items()))
-    return tree.derived(f"scoring_context.relit.{key}", lambda: _relit(tree, base, light))
+    return tree.derived(f"scoring_context.relit.{light_key(lighting)}", lambda: _relit(tree, base, lighting))

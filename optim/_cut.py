@@ -25,6 +25,8 @@ import numpy as np
 
 from pmetric import PlodError
 
+from ._levels import expand_ranges
+
 __all__ = ["Cut", "budget_cut", "budget_cut_heap", "min_nonempty_budget", "threshold_cut", "imperceptible_cut",
            "repair_monotone", "extract"]
 
@@ -321,9 +323,9 @@ def _extract_parts(tree, unf):
     corner_lp, sub_start, subtris = _extract_index_fast(tree)
     U = np.flatnonzero(unf)
     if U.size:
-        bnd = _expand_ranges(tree.child_start.take(U), tree.child_count.take(U))
+        bnd = expand_ranges(tree.child_start.take(U), tree.child_count.take(U))
         bnd = bnd[~unf.take(bnd)]
-        keep = subtris.take(_expand_ranges(sub_start.take(U), tree.num_subtris.take(U)))
+        keep = subtris.take(expand_ranges(sub_start.take(U), tree.num_subtris.take(U)))
         if keep.size * 3 < T:  # few triangles: sort them (SIMD sort) rather than scan a (T,) mask
             keep.sort()
         else:
@@ -370,16 +372,6 @@ def _unfolded_mask(tree, cut, who: str = "extract") -> np.ndarray:
     if unf.shape != (N,) or unf.dtype != np.bool_:
         raise PlodError(f"{who}: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
     return unf
-
-
-def _expand_ranges(start, count) -> np.ndarray:
-    """Concatenation of ``arange(start[i], start[i] + count[i])`` over i (intp)."""
-    count = count.astype(np.intp, copy=False)
-    total = int(count.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.intp)
-    off = np.cumsum(count) - count  # exclusive prefix sums
-    return np.repeat(start.astype(np.intp) - off, count) + np.arange(total, dtype=np.intp)
 
 
 def _extract_index_fast(tree):

@@ -11,7 +11,33 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Levels"]
+__all__ = ["Levels", "expand_ranges", "level_runs"]
+
+
+def expand_ranges(start, count) -> np.ndarray:
+    """Concatenation of ``arange(start[i], start[i] + count[i])`` over i (intp)."""
+    count = count.astype(np.intp, copy=False)
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.intp)
+    off = np.cumsum(count) - count  # exclusive prefix sums
+    return np.repeat(start.astype(np.intp) - off, count) + np.arange(total, dtype=np.intp)
+
+
+def level_runs(start, lo, count, select=None):
+    """Per level ``start[d]:start[d + 1]`` of a breadth-first tree: ``(nodes, idx, off)``: the level's
+    nodes with ``select`` (default all) and ``count > 0``, the concatenated positions of their runs
+    ``lo[n] : lo[n] + count[n]`` and each run's offset in ``idx`` (for ``ufunc.reduceat``). Levels with
+    no such node are skipped. The runs of one level of a vertex tree (depth-first leaf ranges, or the
+    corner runs sorted by them) are disjoint, so each level costs one pass over at most all elements."""
+    for d in range(len(start) - 1):
+        nodes = np.arange(start[d], start[d + 1])
+        if select is not None:
+            nodes = nodes[select[nodes]]
+        sz = count[nodes]
+        nodes, sz = nodes[sz > 0], sz[sz > 0]
+        if nodes.size:
+            yield nodes, expand_ranges(lo[nodes], sz), np.cumsum(sz) - sz
 
 
 class Levels:

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._levels import level_runs
 from ._mesh import face_normals
 from ._normal_cube import _unit, normal_cells
 from ._tree import Lighting, _srgb_luminance, _vertex_normals
@@ -52,6 +53,19 @@ def _tree_nodes(tree, per_vertex: np.ndarray) -> np.ndarray:
     out = np.zeros((tree.n_nodes,) + per_vertex.shape[1:], per_vertex.dtype)
     out[np.asarray(tree.vertex_node)] = per_vertex
     return out
+
+
+def _depth_first_position(tree) -> np.ndarray:
+    """(V,) int64 position of each input vertex in depth-first leaf order (the inverse of
+    ``tree.leaf_vertex``): a node's supported vertices are positions ``leaf_lo : leaf_hi``."""
+    pos = np.empty(tree.n_vertices, np.int64)
+    pos[np.asarray(tree.leaf_vertex, np.int64)] = np.arange(tree.n_vertices)
+    return pos
+
+
+def light_key(lighting) -> str:
+    """The cache name of a lighting (:meth:`VertexTree.derived` names per lighting)."""
+    return str(tuple(sorted(Lighting.coerce(lighting).to_dict().items())))
 
 
 def _build_cones(tree):
@@ -68,8 +82,7 @@ def _build_cones(tree):
     # position of their vertex (a node's supported vertices are contiguous in that order): the cone
     # of every node is exact over its faces, one level at a time (a bottom-up merge of child cones
     # widens at every level: tens of degrees on a tree of depth 20).
-    dfpos = np.empty(len(v), np.int64)
-    dfpos[np.asarray(tree.leaf_vertex, np.int64)] = np.arange(len(v))
+    dfpos = _depth_first_position(tree)
     cf = np.repeat(np.arange(len(f)), 3)[ok.repeat(3)]
     cv = dfpos[f[ok].ravel()]
     srt = np.argsort(cv, kind="stable")
@@ -78,17 +91,10 @@ def _build_cones(tree):
     lo_all = cstart[np.asarray(tree.leaf_lo, np.int64)]
     hi_all = cstart[np.asarray(tree.leaf_hi, np.int64)]
     half = np.zeros(tree.n_nodes)
-    start = lv.start
     ax32 = axis.astype(np.float32)
-    for d in range(len(start) - 1):
-        nodes = np.arange(start[d], start[d + 1])
-        lo, sz = lo_all[nodes], hi_all[nodes] - lo_all[nodes]
-        nodes, lo, sz = nodes[sz > 0], lo[sz > 0], sz[sz > 0]
-        if nodes.size == 0:
-            continue
-        off = np.concatenate([[0], np.cumsum(sz)[:-1]])
-        idx = np.repeat(lo - off, sz) + np.arange(int(sz.sum()))
-        dots = np.einsum("ij,ij->i", np.repeat(ax32[nodes], sz, axis=0), fu[cface[idx]])
+    count = hi_all - lo_all
+    for nodes, idx, off in level_runs(lv.start, lo_all, count):
+        dots = np.einsum("ij,ij->i", np.repeat(ax32[nodes], count[nodes], axis=0), fu[cface[idx]])
         half[nodes] = np.arccos(np.clip(np.minimum.reduceat(dots, off), -1.0, 1.0))
     half[np.linalg.norm(nsum, axis=1) == 0] = np.pi  # isolated vertices, cancelling normals: anything
     half = np.minimum(half * (1 + 1e-6) + 1e-6, np.pi)  # float32 dot products: round outward
@@ -107,19 +113,11 @@ def _build_slab(tree):
     v = np.asarray(tree.vertices, np.float64)
     proxy = np.asarray(tree.position, np.float64)
     ax = axis.astype(np.float64)
-    lo_all, hi_all = np.asarray(tree.leaf_lo, np.int64), np.asarray(tree.leaf_hi, np.int64)
+    lo, hi = np.asarray(tree.leaf_lo, np.int64), np.asarray(tree.leaf_hi, np.int64)
     vd = v[np.asarray(tree.leaf_vertex, np.int64)]  # vertices in depth-first order
-    internal = np.asarray(tree.child_count) > 0
     out = np.zeros(tree.n_nodes)
-    start = tree.levels.start
-    for d in range(len(start) - 1):
-        nodes = np.arange(start[d], start[d + 1])
-        nodes = nodes[internal[nodes]]
-        if nodes.size == 0:
-            continue
-        lo, sz = lo_all[nodes], hi_all[nodes] - lo_all[nodes]
-        off = np.concatenate([[0], np.cumsum(sz)[:-1]])
-        idx = np.repeat(lo - off, sz) + np.arange(int(sz.sum()))
+    for nodes, idx, off in level_runs(tree.levels.start, lo, hi - lo, np.asarray(tree.child_count) > 0):
+        sz = hi[nodes] - lo[nodes]
         dist = np.abs(np.einsum("ij,ij->i", vd[idx] - np.repeat(proxy[nodes], sz, axis=0), np.repeat(ax[nodes], sz, axis=0)))
         out[nodes] = np.maximum.reduceat(dist, off)
     return np.where(out > 0, np.nextafter(out.astype(np.float32), np.float32(np.inf)), 0.0).astype(np.float32)
@@ -184,8 +182,7 @@ def relit_columns(tree, lighting) -> dict:
         f32 = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
         return dict(lum=f32(proxy), lum_min=f32(lo), lum_max=f32(hi), fold_delta=f32(delta))
 
-    key = tuple(sorted(light.to_dict().items()))
-    return tree.derived(f"relight.columns.{key}", build)
+    return tree.derived(f"relight.columns.{light_key(light)}", build)
 
 
 def _build_cull(tree):
@@ -238,10 +235,8 @@ def _post_fold_masks(tree, v, f):
     first node holding all three corners: each corner walks up one level per step, all corners at
     once, and stops there (O(T x the depth of a face's corners below their common ancestor), not
     O(T x tree depth))."""
-    N, V = tree.n_nodes, len(v)
-    dfpos = np.empty(V, np.int64)
-    dfpos[np.asarray(tree.leaf_vertex, np.int64)] = np.arange(V)
-    fd = dfpos[f]  # (T, 3) depth-first positions of the corners
+    N = tree.n_nodes
+    fd = _depth_first_position(tree)[f]  # (T, 3) depth-first positions of the corners
     leaf_lo, leaf_hi = np.asarray(tree.leaf_lo, np.int64), np.asarray(tree.leaf_hi, np.int64)
     parent = np.asarray(tree.parent, np.int64)
     proxy = np.asarray(tree.position, np.float64)

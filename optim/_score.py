@@ -117,26 +117,36 @@ def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
 
 
 _TABLES: dict = {}
+_BANDS: dict = {}
 
 
-def _model_key(model) -> tuple:
-    """A hashable identity of ``model``: its type, structure and constants."""
+def _per_model(cache: dict, model, build):
+    """``build(model)``, cached in ``cache`` by the model's type, structure and constants (at most 17
+    entries: the cache is emptied beyond that)."""
     leaves = jax.tree_util.tree_leaves(model)
-    return (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
-            tuple(np.asarray(x).tobytes() for x in leaves))
+    key = (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
+           tuple(np.asarray(x).tobytes() for x in leaves))
+    if key not in cache:
+        if len(cache) > 16:
+            cache.clear()
+        cache[key] = build(model)
+    return cache[key]
+
+
+def _build_table(model) -> _KeyTable:
+    host = _perceptual_table(model)
+    host.flags.writeable = False
+    return _KeyTable(jnp.asarray(host), host, _model_band(model))
 
 
 def _model_table(model) -> _KeyTable:
     """The key table of ``model`` (device and numpy copies), cached by the model's type and values."""
-    key = _model_key(model)
-    tab = _TABLES.get(key)
-    if tab is None:
-        if len(_TABLES) > 16:
-            _TABLES.clear()
-        host = _perceptual_table(model)
-        host.flags.writeable = False
-        tab = _TABLES[key] = _KeyTable(jnp.asarray(host), host, band_constant(model))
-    return tab
+    return _per_model(_TABLES, model, _build_table)
+
+
+def _model_band(model) -> tuple:
+    """:func:`band_constant` of ``model``, cached like the key tables."""
+    return _per_model(_BANDS, model, band_constant)
 
 
 def table_index(c, theta, ecc):
@@ -160,8 +170,6 @@ def table_gather(ktab, idx, theta, xp=jnp):
     table's resolution (3.7 % in contrast, 15.7 % in the eccentricity-to-size ratio; ratios below 0.01
     use 0, above 1e4 use 1e4). ``idx`` from :func:`table_index`; 0 where it is -1. jax or numpy."""
     return xp.where(idx >= 0, theta * xp.take(ktab, idx, mode="clip"), xp.float32(0.0))  # float32 in, float32 out
-
-
 
 
 # ----------------------------------------------------------------------------------------------
@@ -292,19 +300,6 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=True):
     sz = ctx.sizes
     return (np.concatenate([np.asarray(k)[:n] for (k, _), n in zip(outs, sz)]),
             np.concatenate([np.asarray(c)[:n] for (_, c), n in zip(outs, sz)]))
-
-
-_BANDS: dict = {}
-
-
-def _model_band(model) -> tuple:
-    """:func:`band_constant` of ``model``, cached like the key tables."""
-    key = _model_key(model)
-    if key not in _BANDS:
-        if len(_BANDS) > 16:
-            _BANDS.clear()
-        _BANDS[key] = band_constant(model)
-    return _BANDS[key]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -10,8 +10,8 @@ its inputs once and calls a private hook that a model implements. Generic, exact
 
 Input checking: outside ``jax.jit`` (concrete inputs) a negative or NaN frequency / eccentricity /
 velocity / contrast / size raises :class:`pmetric.PlodError` (a ``ValueError``) naming the argument.
-Under ``jit`` values are not checked: NaN inputs propagate to NaN outputs (``is_perceptible`` then
-returns False) and negative inputs give unspecified results. Shapes that do not broadcast raise
+Under ``jit`` values cannot be refused: NaN or negative inputs give NaN outputs
+(``is_perceptible`` then returns False; :func:`_nan_propagating`). Shapes that do not broadcast raise
 ``PlodError`` at trace time.
 """
 

@@ -12,6 +12,7 @@ import pytest
 import optim
 from optim._mesh import face_normals
 from optim._normal_cube import _unit
+from tests._folds import incident_faces, left_faces, supported
 
 
 def _tent(alpha_deg: float, n: int = 8):
@@ -20,14 +21,6 @@ def _tent(alpha_deg: float, n: int = 8):
     v = v - np.array([1.0, 1.0, 0.0])
     v[:, 2] = -np.abs(v[:, 0]) * math.tan(math.radians(alpha_deg))
     return v, f
-
-
-def _supported(tree, node):
-    return tree.leaf_vertex[tree.leaf_lo[node]:tree.leaf_hi[node]]
-
-
-def _incident_faces(tree, verts):
-    return np.flatnonzero(np.isin(tree.faces, verts).any(1))
 
 
 def test_flat_evenly_lit_region_has_no_relit_contrast():
@@ -45,21 +38,8 @@ def test_flat_evenly_lit_region_has_no_relit_contrast():
         assert _fold_turns_a_face_over(tree, node), node
 
 
-def _left_faces(tree, node, corners=False):
-    """Normals (K, 3) of the faces a fold of ``node`` alone leaves, inside corners at its proxy (and
-    those corners (K, 3, 3) with ``corners``)."""
-    inside = np.zeros(tree.n_vertices, bool)
-    inside[_supported(tree, node)] = True
-    f = tree.faces
-    cnt = inside[f].sum(1)
-    faces = f[(cnt > 0) & (cnt < 3)]
-    p = np.where(inside[faces][:, :, None], tree.position[node].astype(np.float64), tree.vertices[faces])
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    return (n, p) if corners else n
-
-
 def _fold_turns_a_face_over(tree, node):
-    return bool((_left_faces(tree, node)[:, 2] < 0).any())
+    return bool((left_faces(tree, node)[:, 2] < 0).any())
 
 
 def test_tent_fold_toward_the_light_matches_the_closed_form():
@@ -92,7 +72,7 @@ def test_cones_hold_every_incident_face_normal():
     rng = np.random.default_rng(0)
     internal = np.flatnonzero(tree.child_count > 0)
     for node in rng.choice(internal, 60, replace=False):
-        faces = _incident_faces(tree, _supported(tree, node))
+        faces = incident_faces(tree, supported(tree, node))
         ang = np.arccos(np.clip(fu[faces] @ axis[node].astype(np.float64), -1, 1))
         assert ang.max() <= half[node] + 1e-5
 
@@ -109,8 +89,8 @@ def test_relit_range_holds_the_shading_of_every_incident_face(two_sided):
     rng = np.random.default_rng(1)
     internal = np.flatnonzero(tree.child_count > 0)
     for node in rng.choice(internal, 60, replace=False):
-        verts = _supported(tree, node)
-        faces = _incident_faces(tree, verts)
+        verts = supported(tree, node)
+        faces = incident_faces(tree, verts)
         a = albedo[verts]
         assert cols["lum_min"][node] <= a.min() * shade[faces].min() + 1e-6
         assert cols["lum_max"][node] >= a.max() * shade[faces].max() - 1e-6
@@ -167,12 +147,12 @@ def test_a_culled_fold_touches_no_visible_triangle(seed):
     assert len(culled) > 5
     fn = face_normals(v, f.astype(np.int64))
     for node in culled[:200]:
-        verts = _supported(tree, node)
-        ring = np.unique(f[_incident_faces(tree, verts)])
-        faces = _incident_faces(tree, ring)
+        verts = supported(tree, node)
+        ring = np.unique(f[incident_faces(tree, verts)])
+        faces = incident_faces(tree, ring)
         corners = v[f[faces]]  # (K, 3, 3)
         back = (np.einsum("kj,kij->ki", fn[faces], corners - view.eye) >= 0).all(1)
-        n_left, c_left = _left_faces(tree, node, corners=True)  # ... and so are the faces the fold leaves
+        n_left, c_left = left_faces(tree, node, corners=True)  # ... and so are the faces the fold leaves
         back_left = (np.einsum("kj,kij->ki", n_left, c_left - view.eye) >= 0).all(1)
         if back.all() and back_left.all():
             continue
@@ -220,7 +200,7 @@ def test_post_fold_masks_match_a_per_node_reference():
     mask, cos_min = _post_fold_masks(tree, np.asarray(tree.vertices), np.asarray(tree.faces, np.int64))
     axis = optim.normal_cones(tree)[0].astype(np.float64)
     for node in np.flatnonzero(tree.child_count > 0):
-        n = _left_faces(tree, node)
+        n = left_faces(tree, node)
         n = n[(n * n).sum(1) > 0]
         want = np.zeros(6, np.uint64)
         for c in optim.normal_cells(n):

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import optim
 import pmetric
 from optim import View, imperceptible_cut, node_terms, score
+from tests._folds import incident_faces, left_faces, supported
 
 EYE = np.array([0.0, 0.0, 4.0])
 
@@ -32,30 +33,13 @@ def two_spheres_tree():
     return optim.build_tree(verts, faces, method="octree")
 
 
-def _node_vertices(tree, n):
-    return tree.leaf_vertex[tree.leaf_lo[n]:tree.leaf_hi[n]]
-
-
 def _supported_triangles(tree, n):
-    on = np.zeros(tree.n_vertices, bool)
-    on[_node_vertices(tree, n)] = True
-    return np.flatnonzero(on[tree.faces].any(1))
-
-
-def _vertices_triangles(tree, verts):
-    on = np.zeros(tree.n_vertices, bool)
-    on[verts] = True
-    return np.flatnonzero(on[tree.faces].any(1))
+    return incident_faces(tree, supported(tree, n))
 
 
 def _left_cos(tree, n, eye):
     """:func:`_facing_cos` of the faces a fold of node ``n`` alone leaves (inside corners at its proxy)."""
-    inside = np.zeros(tree.n_vertices, bool)
-    inside[_node_vertices(tree, n)] = True
-    cnt = inside[tree.faces].sum(1)
-    faces = tree.faces[(cnt > 0) & (cnt < 3)]
-    p = np.where(inside[faces][:, :, None], tree.position[n].astype(np.float64), tree.vertices[faces])
-    nn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    nn, p = left_faces(tree, n, corners=True)
     d = eye - p.mean(1)
     ok = np.linalg.norm(nn, axis=1) > 0
     return (nn[ok] * d[ok]).sum(1) / np.linalg.norm(nn[ok], axis=1) / np.linalg.norm(d[ok], axis=1)
@@ -78,7 +62,7 @@ def test_sphere_rim_nodes_are_silhouette_interior_are_not(sphere_tree):
         c = cos[_supported_triangles(tree, n)]
         # what the fold touches: the faces of the 2-ring of its vertices and the faces it leaves
         ring = np.unique(tree.faces[_supported_triangles(tree, n)])
-        touched = np.concatenate([cos[_vertices_triangles(tree, ring)], _left_cos(tree, n, EYE)])
+        touched = np.concatenate([cos[incident_faces(tree, ring)], _left_cos(tree, n, EYE)])
         if (c > 0).any() and (c < 0).any():
             rim.append(n)  # supports front- and back-facing triangles: a true silhouette node
         elif (touched > 0.5).all():
@@ -167,9 +151,9 @@ def test_nodes_behind_the_camera_are_culled(two_spheres_tree):
     tree = two_spheres_tree
     view = View(eye=(0, 0, 0), target=(0, 0, -1))
     t = node_terms(tree, view)
-    z = np.array([tree.vertices[_node_vertices(tree, n), 2].min() for n in tree.internal])
+    z = np.array([tree.vertices[supported(tree, n), 2].min() for n in tree.internal])
     behind = tree.internal[z > 0]
-    front = tree.internal[np.array([tree.vertices[_node_vertices(tree, n), 2].max() < 0 for n in tree.internal])]
+    front = tree.internal[np.array([tree.vertices[supported(tree, n), 2].max() < 0 for n in tree.internal])]
     assert len(behind) > 5 and len(front) > 5
     assert t.culled[behind].all()
     for metric in ("perceptual", "size", "geometric"):
