@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml constraints.txt
 	@$(MAKE) --no-print-directory egl
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,judge]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,judge,sweep]"
 	touch $(STAMP)
 
 # Headless rendering (pyrender with PYOPENGL_PLATFORM=egl) needs Mesa's EGL; install it when missing.

@@ -5,6 +5,16 @@ Least squares (Levenberg-Marquardt by default; ``--solver`` / ``--backend`` choo
 ``pmetric.load_model`` and ``plod simplify --model fitted.json`` read back. With ``--method mcmc`` the
 stored model is the posterior median, or with ``--conservative Q`` the model whose thresholds sit at
 the lower Q quantile of the posterior predictive (what imperceptible simplification should use).
+
+Cross-validation (``optim.fit.cross_validate``): ``--cv dataset`` leaves one dataset out at a time,
+``--cv K`` uses K folds from ``--seed``; it prints the training and held-out RMSE (dB) per dataset and
+overall (a rich table, or ``--json``). Regularisation: ``--prior none`` (the default: the plain
+least-squares fit, as before), ``--prior STRENGTH`` / ``--prior-strength STRENGTH`` (lambda >= 0 of the
+Gaussian prior toward the starting model's constants, the published values for a model given by name)
+or ``--prior cv`` (lambda chosen from ``optim.fit.PRIOR_GRID`` by held-out RMSE; the folds are those of
+``--cv``, or leave-one-dataset-out when the data has several datasets and 5-fold otherwise). The same
+prior is the MCMC prior with ``--method mcmc``. ``--out`` with ``--cv`` stores the fit of every row
+at the (chosen) strength.
 """
 
 from __future__ import annotations
@@ -44,7 +54,14 @@ def register(subparsers) -> None:
                    help="fit every row, not only those the model can express (see optim.expressible_rows)")
     p.add_argument("--nwalkers", type=int, default=32, help="MCMC walkers")
     p.add_argument("--nsteps", type=int, default=2000, help="MCMC steps per walker")
-    p.add_argument("--seed", type=int, default=0, help="MCMC seed")
+    p.add_argument("--seed", type=int, default=0, help="MCMC seed; the folds of --cv K")
+    p.add_argument("--cv", default=None, metavar="dataset|K",
+                   help="cross-validate: leave one dataset out (dataset) or K folds (from --seed); prints "
+                        "training and held-out RMSE per dataset")
+    p.add_argument("--prior", default=None, metavar="none|cv|STRENGTH",
+                   help="Gaussian prior toward the starting (published) constants: none (default), a strength "
+                        "lambda >= 0, or cv (lambda chosen by held-out error)")
+    p.add_argument("--prior-strength", default=None, metavar="LAMBDA", help="the same as --prior LAMBDA")
     p.add_argument("--conservative", type=float, default=None, metavar="Q",
                    help="with --method mcmc: save the model at the lower Q quantile of thresholds (e.g. 0.95)")
     p.add_argument("--out", default=None, help="write the fitted model here (JSON)")
@@ -74,6 +91,11 @@ def run(args) -> int:
             raise PlodError(f"--nwalkers must be >= 1, got {args.nwalkers}")
     if args.seed < 0:
         raise PlodError(f"--seed must be >= 0, got {args.seed}")
+    prior_kind, lam = _parse_prior(args.prior, args.prior_strength)
+    if args.cv is not None:
+        if args.method != "lm":
+            raise PlodError("--cv cross-validates least-squares fits; it cannot be combined with --method mcmc")
+        optim.fit._cv.parse_cv(args.cv)  # a bad --cv is refused before any work
     data = optim.fit.CalibrationData.from_csv(data_path)
     model = make_model(args.model)
     fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None
@@ -92,27 +114,53 @@ def run(args) -> int:
     report: dict = {"model": type(model).__name__, "data": str(data_path), "method": args.method,
                     "n_input_rows": n_in, "n_dropped_rows": n_in - n_used, "n_dropped_zero_frequency": n_f0,
                     "dropped_rows": dropped}
-    if args.method == "lm":
+    from experiments._progress import call_with_progress
+
+    kw = dict(multipliers=args.multipliers, fit=fit, rows=rows)
+    cv_res = None
+    if prior_kind == "cv":
+        n_sets = len(data.subset(prob.mask).datasets)
+        cv_spec = args.cv if args.cv is not None else ("dataset" if n_sets >= 2 else 5)
+        lam, grid = call_with_progress(optim.fit.select_prior_strength, model, data, cv=cv_spec, seed=args.seed,
+                                       solver=args.solver, backend=args.backend, progress=not args.json,
+                                       description="prior strength by cross-validation", **kw)
+        report["prior_cv"] = {"cv": str(cv_spec), "held_out_rmse_db": {f"{g:g}": r.test_rmse_db for g, r in grid.items()},
+                              "chosen": lam}
+        cv_res = grid[lam] if args.cv is not None else None
+    elif args.cv is not None:
+        cv_res = call_with_progress(optim.fit.cross_validate, model, data, cv=args.cv, seed=args.seed,
+                                    prior_strength=lam, solver=args.solver, backend=args.backend,
+                                    progress=not args.json, description="cross-validation", **kw)
+    report["prior"] = prior_kind
+    report["prior_strength"] = lam
+    if cv_res is not None:
+        report["cv"] = cv_res.to_dict()
+        fitted = None
+        if args.out is not None:  # the fit of every row at the (chosen) strength
+            fitted = optim.fit_least_squares(model, data, solver=args.solver, backend=args.backend,
+                                             prior_strength=lam, **kw).model
+        text = None
+    elif args.method == "lm":
         res = optim.fit_least_squares(model, data, solver=args.solver, backend=args.backend,
-                                      multipliers=args.multipliers, fit=fit, rows=rows)
+                                      multipliers=args.multipliers, fit=fit, rows=rows, prior_strength=lam)
         fitted = res.model
         report.update(
             solver=res.solver, backend=res.backend, result=res.result, steps=res.steps, n_rows=res.n_rows,
             row_rules=res.row_rules, rmse_db=res.rmse_db, rmse_log10=res.rmse_log10,
             rmse_per_dataset_db=res.rmse_per_dataset, multipliers=res.multipliers,
+            identifiable=res.identifiable,
             params={n: {"value": float(v), "stderr": float(s)}
                     for n, v, s in zip(res.param_names, res.values, res.stderr)},
         )
         text = res.summary()
     else:
-        from experiments._progress import call_with_progress
         from optim.fit import ChainTooShortWarning, conservative, fit_mcmc
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ChainTooShortWarning)
             post = call_with_progress(fit_mcmc, model, data, nwalkers=args.nwalkers, nsteps=args.nsteps,
                                       seed=args.seed, multipliers=args.multipliers, fit=fit, rows=rows,
-                                      progress=not args.json, description=f"emcee {args.nwalkers}x{args.nsteps}")
+                                      prior_strength=lam, progress=not args.json, description=f"emcee {args.nwalkers}x{args.nsteps}")
         fitted = post.model() if args.conservative is None else conservative(post, args.conservative)
         lo, hi = post.interval(0.95)
         report.update(
@@ -125,17 +173,77 @@ def run(args) -> int:
                     for n, m, a, b in zip(post.param_names, post.median(), lo, hi)},
         )
         text = post.summary() + ("" if post.warning is None else f"\nwarning: {post.warning}")
-    if dropped is not None:
-        text = f"{dropped}\n{text}"
+    if prior_kind == "cv" and text is not None:
+        text = f"prior strength {lam:g} chosen by {report['prior_cv']['cv']} cross-validation\n{text}"
     if args.out is not None:
         pmetric.save_model(fitted, args.out)
         report["out"] = str(args.out)
-        text += f"\nwrote {args.out}"
     if args.json:
         print(json.dumps(report, indent=1, default=_jsonable))
+        return 0
+    if dropped is not None:
+        print(dropped)
+    if cv_res is not None:
+        _print_cv(cv_res, report.get("prior_cv"))
     else:
         print(text)
+    if args.out is not None:
+        print(f"wrote {args.out}")
     return 0
+
+
+def _parse_prior(prior, strength) -> tuple[str, float]:
+    """``("none", 0)``, ``("cv", 0)`` (chosen later) or ``("fixed", lambda)`` from --prior / --prior-strength."""
+    def number(flag, x):
+        try:
+            v = float(x)
+        except ValueError:
+            raise PlodError(f"{flag} must be none, cv or a number >= 0, got {x!r}") from None
+        if not (math.isfinite(v) and v >= 0):
+            raise PlodError(f"{flag} must be a finite number >= 0, got {x!r}")
+        return v
+
+    if strength is not None:
+        lam = number("--prior-strength", strength)
+        if prior is not None and (prior.strip().lower() in ("none", "cv") or number("--prior", prior) != lam):
+            raise PlodError(f"--prior {prior} and --prior-strength {strength} disagree; give one of them")
+        return ("none", 0.0) if lam == 0 else ("fixed", lam)
+    if prior is None or prior.strip().lower() == "none":
+        return "none", 0.0
+    if prior.strip().lower() == "cv":
+        return "cv", 0.0
+    lam = number("--prior", prior)
+    return ("none", 0.0) if lam == 0 else ("fixed", lam)
+
+
+def _print_cv(cv, prior_cv) -> None:
+    """The train / held-out table of a ``CVResult`` (rich)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    how = "leave-one-dataset-out" if cv.cv == "dataset" else f"{cv.k}-fold (seed {cv.seed})"
+    table = Table(title=f"plod fit {cv.model}: {how} cross-validation, {cv.n_rows} rows, prior strength "
+                        f"{cv.prior_strength:g}{', multipliers' if cv.multipliers else ''} (RMSE, dB)")
+    table.add_column("dataset")
+    for name in ("rows", "train dB", "held-out dB"):
+        table.add_column(name, justify="right", no_wrap=True)
+    if cv.cv == "dataset":
+        table.add_column("held-out multiplier", justify="right", no_wrap=True)
+    folds = {f.name: f for f in cv.folds}
+    for d in cv.datasets:
+        row = [d, str(cv.rows_per_dataset[d]), f"{cv.train_rmse_per_dataset.get(d, math.nan):.2f}",
+               f"{cv.test_rmse_per_dataset[d]:.2f}"]
+        if cv.cv == "dataset":
+            row.append(f"{folds[d].test_multipliers[d]:.3f}")
+        table.add_row(*row)
+    last = ["overall", str(cv.n_rows), f"{cv.train_rmse_db:.2f}", f"{cv.test_rmse_db:.2f}"]
+    table.add_row(*(last + ([""] if cv.cv == "dataset" else [])), style="bold")
+    con = Console()
+    con.print(table)
+    if prior_cv is not None:
+        con.print("prior strength by held-out RMSE: " + ", ".join(
+            f"{g}: {v:.2f} dB" for g, v in prior_cv["held_out_rmse_db"].items())
+            + f"; chosen {prior_cv['chosen']:g} (the held-out RMSE at the chosen strength is slightly optimistic)")
 
 
 def _jsonable(x):

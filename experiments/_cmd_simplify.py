@@ -7,6 +7,10 @@ keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut
 ``optim.extract`` -> write ``--out`` atomically (never over the input; every output path is checked
 by ``experiments._paths.check_output`` before any work).
 
+A mesh of extreme size (bounding-box diagonal outside 1e-6 .. 1e6 object units) is scaled by an exact
+power of two for the tree, view and keys, and the output scaled back (``unit_exponent``): plod's
+float32 scoring needs it (issue 13).
+
 Units: ``--fov`` and ``--screen-deg`` deg, ``--distance-m`` m, ``--gaze`` pixels of the image (x right,
 y down, origin top-left), ``--gaze-error`` deg. Perceptual keys are viewing-distance multiples
 [LH01 §5.3]; size and geometric keys are pixels. ``--model`` takes any spelling ``pmetric.make_model``
@@ -152,45 +156,95 @@ def _file_key(path: Path, method: str) -> str:
     return h.hexdigest()
 
 
+#: bounding-box diagonals (object units) that ``plod simplify`` uses as they are; a mesh outside this
+#: range is scaled by an exact power of two (``unit_exponent``) to a diagonal of about 1 for the tree,
+#: the view and the keys (float32 inside: x1e18 gave all keys 0, x1e-20 no view), and the output is
+#: scaled back exactly. Within it nothing changes (tests/test_scale.py: x1e-6 .. x1e6 agree with x1).
+UNSCALED_DIAGONAL = (1e-6, 1e6)
+
+
+def unit_exponent(vertices) -> int:
+    """``k`` with ``vertices * 2**k`` of bounding-box diagonal in about [0.7, 1.4]; 0 when the diagonal
+    is within :data:`UNSCALED_DIAGONAL` (or zero: ``validate_mesh`` judges such a mesh)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    lo, hi = v.min(0), v.max(0)
+    diag = float(np.hypot.reduce(hi - lo)) if np.isfinite(hi - lo).all() else math.inf
+    if diag == 0.0 or UNSCALED_DIAGONAL[0] <= diag <= UNSCALED_DIAGONAL[1]:
+        return 0
+    if not math.isfinite(diag):  # the extent overflows float64 (coordinates near 1e308)
+        return -int(round(math.log2(float(np.hypot.reduce(np.ldexp(hi, -64) - np.ldexp(lo, -64)))) + 64))
+    return -int(round(math.log2(diag)))
+
+
+def _cache_entry(root: Path, key: str) -> tuple[Path, int] | None:
+    """The cached tree of ``key`` and its unit exponent (``KEY.npz``: 0; ``KEY.s{k}.npz``: k)."""
+    plain = root / f"{key}.npz"
+    if plain.is_file():
+        return plain, 0
+    for p in sorted(root.glob(f"{key}.s*.npz")):
+        try:
+            return p, int(p.name[len(key) + 2:-4])
+        except ValueError:
+            continue
+    return None
+
+
 def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: bool = False):
-    """(tree, "hit" | "miss" | "off", load seconds): the vertex tree of a mesh file.
+    """(tree, "hit" | "miss" | "off", load seconds, k): the vertex tree of a mesh file, built on the
+    mesh scaled by ``2**k`` (:func:`unit_exponent`; 0 for every mesh of ordinary size).
 
     The cache is keyed by the file's bytes (plus method and tree format), so a hit skips parsing the
     mesh as well as building the tree; the tree holds the validated mesh (``tree.vertices``,
-    ``tree.faces``, ``tree.colors``), which is all the later stages need.
+    ``tree.faces``, ``tree.colors``, scaled by ``2**k``), which is all the later stages need.
     """
     import optim
 
     entry = None
     root = cache_dir() if use_cache else None
     if root is not None:
-        entry = root / f"{_file_key(path, method)}.npz"
-        if entry.is_file():
+        from pmetric._atomic import remove_stale_temps_in
+
+        remove_stale_temps_in(root)  # temp files of cache writes killed earlier (SIGKILL), any mesh's
+        key = _file_key(path, method)
+        found = _cache_entry(root, key)
+        if found is not None:
             try:
-                return optim.load_tree(entry), "hit", 0.0
+                return optim.load_tree(found[0]), "hit", 0.0, found[1]
             except (ValueError, OSError, KeyError):
                 pass  # unreadable or stale cache entry: rebuild and overwrite it
     t0 = time.perf_counter()
     vertices, faces, colors = optim.load_mesh(path)
+    k = unit_exponent(vertices)
+    if k:
+        vertices = np.ldexp(vertices, k)  # exact: a power of two
+        if not np.isfinite(vertices).all():
+            raise PlodError(f"mesh file {str(path)!r}: its coordinates lie too far from the origin for its size "
+                            f"(scaled by 2**{k} to a unit diagonal they overflow); move it nearer the origin")
     load_s = time.perf_counter() - t0
     from experiments._progress import call_with_progress
 
     tree = call_with_progress(optim.build_tree, vertices, faces, colors, method=method, progress=progress)
-    if entry is None:
-        return tree, "off", load_s
+    if root is None:
+        return tree, "off", load_s, k
+    entry = root / (f"{key}.npz" if k == 0 else f"{key}.s{k}.npz")
     try:
         tree.save(entry)
     except OSError:
         pass  # a read-only cache never stops the command
-    return tree, "miss", load_s
+    return tree, "miss", load_s, k
 
 
-def build_view(vertices, args):
-    """The ``optim.View`` described by the flags (see the module docstring)."""
+def build_view(vertices, args, unit_exp: int = 0):
+    """The ``optim.View`` described by the flags (see the module docstring); ``vertices`` are the
+    mesh's scaled by ``2**unit_exp`` (see :func:`tree_for_file`), ``--eye`` and ``--target`` are
+    scaled alike."""
     import optim
 
     eye = _vector("--eye", args.eye, 3)
     target = _vector("--target", args.target, 3)
+    if unit_exp:
+        eye = None if eye is None else np.ldexp(eye, unit_exp)
+        target = None if target is None else np.ldexp(target, unit_exp)
     up = _vector("--up", args.up, 3)
     fov = _number("--fov", args.fov, hi=180.0)
     screen = _number("--screen-deg", args.screen_deg, hi=180.0)
@@ -212,6 +266,18 @@ def build_view(vertices, args):
     if target is None:
         target = 0.5 * (vertices.min(0) + vertices.max(0))
     return optim.View(eye=eye, target=target, **kw)
+
+
+def _check_view_flags(args) -> None:
+    """Check the view flags before any work (issue 13: an off-screen ``--gaze`` was found only after
+    the tree was built): the numbers of ``--eye/--target/--up``, and every other flag through a
+    throwaway ``View`` of a unit cube (the same checks ``build_view`` makes later)."""
+    import argparse
+
+    for flag, text in (("--eye", args.eye), ("--target", args.target), ("--up", args.up)):
+        _vector(flag, text, 3)
+    rest = argparse.Namespace(**{**vars(args), "eye": None, "target": None, "up": None})
+    build_view(np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), rest)
 
 
 # ----------------------------------------------------------------------------------------------- run
@@ -274,18 +340,25 @@ def simplify(args) -> dict:
     model = make_model(args.model)
     if not mesh_path.is_file():
         raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
+    _check_view_flags(args)
     t = {}
     t0 = time.perf_counter()
-    tree, cache, t["load"] = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
-                                           progress=not args.json)
+    tree, cache, t["load"], unit_exp = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
+                                                     progress=not args.json)
     t["build"] = time.perf_counter() - t0 - t["load"]
-    view = build_view(tree.vertices, args)
+    if out is not None:  # the format must hold the mesh's coordinates (float32 PLY: |x| < 3.4e38)
+        from optim._mesh import check_writable
+
+        check_writable(out, np.ldexp(tree.vertices, -unit_exp) if unit_exp else tree.vertices)
+    view = build_view(tree.vertices, args, unit_exp)
     keys = _timed(t, "score", optim.score, tree, view, model, args.metric)
     cut = _timed(t, "cut", _cut, tree, keys, args, budget)
     if budget is not None and cut.triangles == 0:
         raise PlodError(f"--budget {budget} is below the smallest non-empty cut for this view "
                         f"({optim.min_nonempty_budget(tree, keys, monotone='trust')} triangles)")
     v2, f2, c2 = _timed(t, "extract", optim.extract, tree, cut)
+    if unit_exp:
+        v2 = np.ldexp(np.asarray(v2, np.float64), -unit_exp)  # back to the file's units, exactly
     flips = optim.cut_flips(tree, cut)
     if out is not None:
         _timed(t, "save", optim.save_mesh, out, v2, f2, c2, protect=(mesh_path,))
@@ -316,6 +389,7 @@ def simplify(args) -> dict:
         "lighting": view.lighting.to_dict() if view.lighting is not None else "baked",
         "tree_method": args.method,
         "tree_cache": cache,
+        "unit_exponent": unit_exp,  # the tree, view and keys used the mesh scaled by 2**unit_exponent
         "out": str(out) if out is not None else None,
         "render": rendered,
         "timings_ms": {k: round(v * 1e3, 3) for k, v in t.items()},
@@ -323,7 +397,10 @@ def simplify(args) -> dict:
 
 
 def run(args) -> int:
+    from experiments._interrupt import check
+
     res = simplify(args)
+    check()  # a Ctrl-C that something swallowed: no result is reported (report_errors: status 130)
     if args.json:
         print(json.dumps(res, indent=2))
         return 0

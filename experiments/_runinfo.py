@@ -120,16 +120,39 @@ USER_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, PermissionError
 
 def report_errors(fn, prog: str) -> int:
     """``fn()``'s exit code; a user error is printed as ``PROG: error: MESSAGE`` (status 2), an
-    interrupt as ``PROG: interrupted`` (status 130)."""
-    try:
-        return int(fn() or 0)
-    except USER_ERRORS as exc:
-        msg = " ".join(str(exc).split()) or type(exc).__name__  # one line, whatever the message holds
-        print(f"{prog}: error: {msg}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+    interrupt as ``PROG: interrupted`` (status 130).
+
+    Ctrl-C always stops the command (``experiments._interrupt``): an interrupt that was swallowed on the
+    way (a gc callback, a ``__del__``) still blocks every later atomic write and ends with status 130.
+    """
+    from experiments import _interrupt
+
+    with _interrupt.guard():
+        try:
+            _interrupt.check()  # a Ctrl-C during start-up (recorded only, see _interrupt.install)
+            code = int(fn() or 0)
+            _interrupt.check()
+            return code
+        except KeyboardInterrupt:
+            return _interrupted(prog)
+        except USER_ERRORS as exc:
+            if _interrupt.seen():  # the error came from an interrupted step
+                return _interrupted(prog)
+            msg = " ".join(str(exc).split()) or type(exc).__name__  # one line, whatever the message holds
+            print(f"{prog}: error: {msg}", file=sys.stderr)
+            return 2
+        except Exception:
+            if _interrupt.seen():  # e.g. ImportError: a KeyboardInterrupt inside a C extension's import
+                return _interrupted(prog)
+            raise
+
+
+def _interrupted(prog: str) -> int:
+    from experiments import _interrupt
+
+    _interrupt.stop_raising()
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return 130
 
 
 def run_main(main) -> int:

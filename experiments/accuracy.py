@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import sys
 import time
@@ -38,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments._runinfo import load_config, repo_path, save_run_info
+from experiments.experiment import baked_grey, procedural_mesh, view_directions  # noqa: F401  (shared with the runner)
 from pmetric import PlodError, atomic_write_text
 
 DEFAULTS = {
@@ -71,13 +71,6 @@ IMPERCEPTIBLE_TARGET = 9.8
 
 
 # ----------------------------------------------------------------------------------------------- inputs
-def _grey(lum: np.ndarray) -> np.ndarray:
-    import pmetric as pm
-
-    g = np.asarray(pm.linear_to_srgb(np.asarray(lum, np.float32)), np.float32)
-    return np.repeat(g[:, None], 3, axis=1)
-
-
 def load_meshes(cfg):
     """[(name, vertices, faces, colors or None)] of the config's files (missing ones skipped) and
     procedural meshes."""
@@ -90,35 +83,11 @@ def load_meshes(cfg):
             v, f, c = optim.load_mesh(p)
             out.append((p.stem, v, f, c))
     for spec in cfg["procedural"]:
-        kind, *nums = spec.split(":")
-        try:
-            nums = [int(x) for x in nums]
-            if kind == "sphere" and len(nums) == 2:
-                v, f, c = optim.bumpy_sphere(nums[0], seed=nums[1], colors=True)
-            elif kind == "torus" and len(nums) == 3:
-                v, f = optim.bumpy_torus(nums[0], nums[1], seed=nums[2])
-                c = None
-            else:
-                raise ValueError
-        except ValueError:
-            raise PlodError(f"config key 'procedural': {spec!r} is not 'sphere:SUBDIV:SEED' or 'torus:NU:NV:SEED'") from None
+        v, f, c = procedural_mesh(spec)
         out.append((spec.replace(":", "-"), v, f, c))
     if not out:
         raise PlodError("accuracy: no meshes (none of the config's files exist and 'procedural' is empty)")
     return out
-
-
-def view_directions(n: int, seed: int, name: str) -> np.ndarray:
-    """``n`` random unit view directions for mesh ``name`` (seeded by the config's seed and the name),
-    kept within 60 deg of the horizon so the object is not seen from straight above or below."""
-    rng = np.random.default_rng([seed, sum(name.encode())])
-    out = []
-    while len(out) < n:
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        if abs(d[1]) < math.sin(math.radians(60)):
-            out.append(d)
-    return np.array(out)
 
 
 def load_models(names):
@@ -145,7 +114,7 @@ class _Mesh:
         t0 = time.perf_counter()
         self.tree = {"relit": optim.build_tree(v, f, c)}
         if c is None:
-            self.baked_colors = _grey(optim.vertex_luminance(v, f))
+            self.baked_colors = baked_grey(v, f)
             self.tree["baked"] = optim.build_tree(v, f, self.baked_colors)
         else:
             self.baked_colors = c
@@ -156,14 +125,16 @@ class _Mesh:
         return (self.v, self.f, self.c if lighting == "relit" else self.baked_colors)
 
     def peer(self, method: str, lighting: str, target: int):
-        """A view-independent peer's result at ``target`` triangles with the cell's colours."""
-        from experiments.peers import compact, fast_simplify, meshopt_simplify, nearest_colors
+        """A view-independent peer's result at ``target`` triangles with the cell's colours
+        (``experiments.experiment``'s, with meshoptimizer keeping the mesh's own colour edges)."""
+        from experiments.experiment import _peer
 
         colors = self.c if lighting == "relit" else self.baked_colors
         if method == "meshoptimizer":
+            from experiments.peers import compact, meshopt_simplify
+
             return compact(self.v, meshopt_simplify(self.v, self.f, target, self.c), colors)
-        pv, pf = fast_simplify(self.v, self.f, target)
-        return pv, pf.astype(np.int32), nearest_colors(self.v, colors, pv)
+        return _peer(method, self.v, self.f, colors, target)
 
 
 def _view(mesh: _Mesh, direction, gaze_deg, lighting, cfg, model_lights: bool):

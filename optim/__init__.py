@@ -5,7 +5,8 @@ Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) 
 ``_normal_cube``, level-by-level propagation in ``_levels``) -> view (``_view``, with its lights) -> score folds
 (``_score``: classify -> terms -> key -> propagate, over the per-tree ``_context``, what a renderer shows in
 ``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``); fitting of model
-constants in ``optim.fit``.
+constants in ``optim.fit``. Beside the meshes: the perceptual point-hierarchy traversal of [LH01 §4] / [RL00] in
+``_points``, and Reddy's perceptual terrain quadtree [Red01] in ``_terrain``.
 """
 
 # Each private module adds its public names below (one import line per module).
@@ -23,4 +24,8 @@ from ._view import View
 from ._context import ScoringContext, scoring_context
 from ._relight import cull_columns, normal_cones, relit_columns, slab_half_width
 from ._score import NodeTerms, node_terms, score, default_model
+from ._points import (PointHierarchy, PointTerms, Traversal, build_points, load_points, point_terms, points_from_mesh,
+                      save_points, splat_discs, traverse, walk)
+from ._terrain import (Heightfield, TerrainCamera, TerrainCriteria, TerrainLOD, crop_heightfield, fractal_heightfield,
+                       full_mesh, refine_terrain, terrain_mesh)
 from .fit import ChainTooShortWarning, LogUniform, Normal, Posterior, Uniform, conservative, fit_mcmc

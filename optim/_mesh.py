@@ -9,7 +9,11 @@ Bad-input policy of :func:`validate_mesh` (the single place it is decided):
 
 * errors (``pmetric.PlodError``, a ``ValueError``, naming the problem): faces not of shape (T, 3) (non-triangles), non-integer
   faces, vertices not (V, 3), NaN or infinite coordinates, negative or out-of-range indices, an empty
-  mesh (no vertices or no faces, or no face left after cleaning), colours of the wrong shape / NaN.
+  mesh (no vertices or no faces, or no face left after cleaning), colours of the wrong shape / NaN;
+  a mesh outside the scales the float32 scoring handles: a coordinate beyond :data:`COORD_MAX` or a
+  bounding-box diagonal below :data:`DIAGONAL_MIN` (measured: a unit bumpy sphere scores correctly
+  from x1e-19 to x1e18; at x1e19 every key was 0, at x1e-20 every node perceptible). ``plod simplify``
+  rescales such meshes by a power of two itself.
 * documented handling, counted in the returned :class:`MeshReport`:
   - *degenerate* triangles (a corner index repeated) are dropped: they cover no area and no vertex
     hierarchy can give them an owner;
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import math
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -33,7 +38,15 @@ import numpy as np
 
 from pmetric import PlodError
 
+#: largest |coordinate| (object units) the tree and the float32 scoring accept (issue 13: x1e18 gave
+#: every perceptual key 0); three decades below where it failed
+COORD_MAX = 1e15
+#: smallest non-zero bounding-box diagonal (object units) accepted; three decades above where it failed
+DIAGONAL_MIN = 1e-15
+
 __all__ = [
+    "COORD_MAX",
+    "DIAGONAL_MIN",
     "MeshReport",
     "ValidatedMesh",
     "face_normals",
@@ -139,6 +152,7 @@ def validated_mesh_and_normals(vertices, faces, colors=None, *, name: str = "mes
     nv, n_in = v.shape[0], f.shape[0]
     f, n_degen, n_dup = _drop_bad_faces(f, nv, name)
     v, f, c, n_unref = _drop_unreferenced(v, f, c)
+    _check_scale(v, name)
     cr = face_normals(v, f)  # zero-area triangles are kept, and counted
     report = MeshReport(
         vertices_in=nv,
@@ -191,6 +205,19 @@ def _check_arrays(vertices, faces, name: str):
             f"first: face {int(bad_f[0])})"
         )
     return v, f.astype(np.int64, copy=False)
+
+
+def _check_scale(v: np.ndarray, name: str) -> None:
+    """PlodError when the (referenced) vertices lie outside :data:`COORD_MAX` / :data:`DIAGONAL_MIN`."""
+    big = float(np.abs(v).max())
+    diag = float(np.linalg.norm(v.max(0) - v.min(0))) if big <= COORD_MAX else math.inf
+    hint = "; rescale the mesh (plod simplify does so itself)"
+    if big > COORD_MAX:
+        raise PlodError(f"{name}: coordinates up to {big:.3g} object units; plod's float32 scoring supports "
+                        f"|coordinate| <= {COORD_MAX:g}{hint}")
+    if 0.0 < diag < DIAGONAL_MIN:
+        raise PlodError(f"{name}: bounding-box diagonal {diag:.3g} object units; plod's float32 scoring "
+                        f"supports diagonals >= {DIAGONAL_MIN:g}{hint}")
 
 
 def _check_colors(colors, nv: int, name: str):
@@ -329,6 +356,46 @@ def load_mesh(path: str | os.PathLike):
 
 _TEXT_FORMATS = ("obj", "off", "ply", "stl")
 
+#: formats whose coordinates trimesh writes as float32 (binary PLY, STL, GLB)
+_FLOAT32_FORMATS = ("ply", "stl", "glb")
+#: decimals trimesh writes by default for the fixed-point text formats (trimesh.exchange.obj / .off)
+_TEXT_DIGITS = {"obj": 8, "off": 10}
+
+
+def check_writable(path, vertices) -> None:
+    """PlodError when :func:`save_mesh` could not write coordinates like ``vertices`` (V, 3) to
+    ``path``'s format (see ``_export_precision``); lets a command refuse before doing the work."""
+    p = Path(path)
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.size:
+        _export_precision(v, p.suffix.lower().lstrip("."), p)
+
+
+def _export_precision(v: np.ndarray, fmt: str, p: Path) -> dict:
+    """Export keywords that keep the coordinates, or PlodError when the format cannot hold them.
+
+    float32 formats: every coordinate must stay finite and the float32 copy must keep the mesh's
+    extent (relative error <= 1e-6; subnormal-sized meshes do not). Fixed-point text formats (OBJ, OFF
+    write ``{:.Nf}``): N is raised so that the largest coordinate keeps 9 significant digits at least (trimesh's
+    8 decimals wrote a 1e-9-unit mesh as zeros).
+    """
+    big = float(np.abs(v).max())
+    if fmt in _FLOAT32_FORMATS:
+        with np.errstate(over="ignore"):
+            v32 = v.astype(np.float32)
+        ext = float(np.abs(v.max(0) - v.min(0)).max())
+        err = float(np.abs(v32.astype(np.float64) - v).max()) if np.isfinite(v32).all() else math.inf
+        if not np.isfinite(v32).all() or (ext > 0 and err > 1e-6 * max(ext, big * 2.0 ** -23)):
+            raise PlodError(f"save_mesh: coordinates up to {big:.3g} (extent {ext:.3g}) do not fit the float32 "
+                            f".{fmt} format of {str(p)!r}; write .obj or .off (text) instead")
+        return {}
+    if fmt in _TEXT_DIGITS and big > 0:
+        digits = max(_TEXT_DIGITS[fmt], 8 - math.floor(math.log10(big)))
+        if digits > 400:
+            raise PlodError(f"save_mesh: coordinates up to {big:.3g} are too small for the .{fmt} format")
+        return {"digits": digits} if digits != _TEXT_DIGITS[fmt] else {}
+    return {}
+
 
 def _looks_binary(data: bytes) -> bool:
     """NUL bytes or more than 1 % control characters (other than whitespace): not text."""
@@ -431,8 +498,10 @@ def save_mesh(path, vertices, faces, colors=None, *, protect=()):
         if c.shape != v.shape:
             raise PlodError(f"save_mesh: colors must have shape {v.shape}, got {c.shape}")
         kw["vertex_colors"] = np.clip(np.round(c * 255.0), 0, 255).astype(np.uint8)
+    if not np.isfinite(v).all():
+        raise PlodError(f"save_mesh: refusing to write NaN or infinite coordinates to {str(p)!r}")
     mesh = trimesh.Trimesh(vertices=v, faces=f.reshape(-1, 3), process=False, **kw)
-    data = mesh.export(file_type=fmt)
+    data = mesh.export(file_type=fmt, **_export_precision(v, fmt, p))
     if isinstance(data, str):
         data = data.encode("utf-8")
     with atomic_path(p, protect=tuple(protect)) as tmp:

@@ -116,7 +116,8 @@ class View(eqx.Module):
         self.target = _vec3("target", target)
         self.up = _vec3("up", up)
         fwd = self.target - self.eye
-        if np.linalg.norm(fwd) <= 1e-12 * max(1.0, np.linalg.norm(self.eye)):
+        # relative to the positions' own magnitude, so a view of a tiny (1e-20 units) object is fine
+        if np.linalg.norm(fwd) <= 1e-12 * max(np.linalg.norm(self.eye), np.linalg.norm(self.target)):
             raise PlodError("View: eye and target coincide; the viewing direction is undefined")
         if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * max(np.linalg.norm(self.up), 1e-300):
             raise PlodError("View: up must not be parallel to the viewing direction (target - eye)")

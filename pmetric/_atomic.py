@@ -10,6 +10,13 @@ exception (``KeyboardInterrupt`` included). A process killed outright (SIGKILL, 
 clean up, so every write first removes the stale temporary files *of the same target* in that
 folder: those of this host whose process is gone, and any older than :data:`STALE_AFTER_S`.
 
+Commit checks: a program may register callables (:func:`add_commit_check`) that every write calls
+before it creates its temporary file and again just before it moves the file into place; one that
+raises stops the write (the temporary file is removed, the target left as it was). The ``plod``
+command line registers one that raises ``KeyboardInterrupt`` once Ctrl-C was pressed
+(``experiments._interrupt``), so no output is committed after an interrupt, even one that something
+swallowed. The library itself registers none.
+
 Permissions: a new file gets ``0666 & ~umask`` (like ``open(path, "w")``); overwriting an existing
 file keeps that file's permission bits.
 """
@@ -29,13 +36,35 @@ from typing import Iterator
 
 from ._errors import PlodError
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "STALE_AFTER_S", "TMP_TAG"]
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "STALE_AFTER_S", "TMP_TAG",
+           "add_commit_check", "remove_commit_check", "remove_stale_temps", "remove_stale_temps_in"]
 
 TMP_TAG = ".plod-tmp-"
 """Marker in every temporary file name of :func:`atomic_path`."""
 
 STALE_AFTER_S = 3600.0
 """A temporary file untouched for this long (s) is stale whatever its PID (PID reuse, other hosts)."""
+
+
+_COMMIT_CHECKS: list = []
+
+
+def add_commit_check(fn) -> None:
+    """Register ``fn()`` to be called before every write creates and commits a file (see the module
+    docstring); an exception it raises stops that write."""
+    if fn not in _COMMIT_CHECKS:
+        _COMMIT_CHECKS.append(fn)
+
+
+def remove_commit_check(fn) -> None:
+    """Undo :func:`add_commit_check` (no error when ``fn`` is not registered)."""
+    with contextlib.suppress(ValueError):
+        _COMMIT_CHECKS.remove(fn)
+
+
+def _run_commit_checks() -> None:
+    for fn in tuple(_COMMIT_CHECKS):
+        fn()
 
 
 def _host_tag() -> str:
@@ -60,19 +89,13 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def remove_stale_temps(dest: str | os.PathLike, *, now: float | None = None) -> list[Path]:
-    """Remove the stale temporary files of target ``dest`` (see the module docstring); returns them.
-
-    Never raises for files it cannot remove or folders it cannot list.
-    """
-    dest = Path(dest)
-    rx = _tmp_regex(dest.name)
+def _sweep(folder: Path, rx: re.Pattern, now: float | None) -> list[Path]:
     host = _host_tag()
     me = os.getpid()
     now = time.time() if now is None else now
     removed = []
     try:
-        entries = list(os.scandir(dest.parent))
+        entries = list(os.scandir(folder))
     except OSError:
         return removed
     for e in entries:
@@ -92,6 +115,25 @@ def remove_stale_temps(dest: str | os.PathLike, *, now: float | None = None) -> 
                 os.unlink(e.path)
                 removed.append(Path(e.path))
     return removed
+
+
+def remove_stale_temps(dest: str | os.PathLike, *, now: float | None = None) -> list[Path]:
+    """Remove the stale temporary files of target ``dest`` (see the module docstring); returns them.
+
+    Never raises for files it cannot remove or folders it cannot list.
+    """
+    dest = Path(dest)
+    return _sweep(dest.parent, _tmp_regex(dest.name), now)
+
+
+_ANY_TMP = re.compile(r"\..+?" + re.escape(TMP_TAG) + r"([0-9a-f]{6})-(\d+)-[0-9a-f]+.*\Z", re.S)
+
+
+def remove_stale_temps_in(folder: str | os.PathLike, *, now: float | None = None) -> list[Path]:
+    """Remove the stale temporary files of *every* target in ``folder`` (same rules as
+    :func:`remove_stale_temps`; only names of this module's pattern are touched). For folders plod
+    owns (its cache), where the target of a killed write may never be written again."""
+    return _sweep(Path(folder), _ANY_TMP, now)
 
 
 def _new_temp(dest: Path) -> Path:
@@ -122,12 +164,14 @@ def atomic_path(path: str | os.PathLike, *, protect: tuple[str | os.PathLike, ..
     for p in protect:
         if p is not None and Path(p).exists() and dest.exists() and os.path.samefile(dest, p):
             raise PlodError(f"refusing to overwrite the input file {str(p)!r}; choose another output path")
+    _run_commit_checks()
     dest.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(dest)
     tmp_path: Path | None = None
     try:
         tmp_path = _new_temp(dest)
         yield tmp_path
+        _run_commit_checks()
         try:
             mode = stat.S_IMODE(os.stat(dest).st_mode)
         except FileNotFoundError:

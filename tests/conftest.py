@@ -83,6 +83,12 @@ SLOW_TESTS = frozenset({
                    "StelaCSF")),
     "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-StelaCSF]",
     "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-KellySpatioTemporal]",
+    # issue 13 fuzz cases: eight subprocess runs of plod with Ctrl-C; two more extreme scales
+    "tests/test_fuzz.py::test_ctrl_c_at_many_moments_exits_130_and_writes_nothing",
+    "tests/test_fuzz.py::test_cli_extreme_scales_work[1e+30]",
+    "tests/test_fuzz.py::test_cli_extreme_scales_work[1e-300]",
+    # issue 11: the shipped small experiment config with its real judges (about 90 s)
+    "tests/test_experiment.py::test_small_config_end_to_end",
 })
 
 

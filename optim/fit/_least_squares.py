@@ -5,7 +5,16 @@ The residuals, the reparametrisation by ``param_bounds`` and the rows fitted are
 
 The covariance of the natural parameters is ``D (J^T J)^+ D^T s^2`` with ``J`` the Jacobian of the
 residuals in ``u``, ``s^2 = SSR / (n - p)`` and ``D = dx/du`` (the delta method through the
-reparametrisation).
+reparametrisation). With ``n <= p`` rows the constants are not identifiable from the data: the
+covariance and standard errors are NaN (never a spuriously tiny number).
+
+Regularisation (``prior_strength=lambda > 0``): a Gaussian prior on the fitted constants in the
+unconstrained coordinates ``u`` of ``optim.fit._problem``, centred on the starting model's constants
+``u0`` (the published values when the model is made by name). Least squares then minimises
+``SSR + lambda * sum_j (u_j - u0_j)^2`` (``lambda`` is dimensionless: ``u`` is a log / logit of the
+constant, so the prior s.d. of each ``u_j`` is ``sigma / sqrt(lambda)`` for data noise ``sigma``): the
+maximum a posteriori estimate under ``optim.fit._priors.ridge_log_prior``, the same prior ``fit_mcmc``
+uses. The multipliers are not penalised. ``J`` above then includes the prior rows.
 
 Outcomes are members of optimistix's ``optx.RESULTS`` enumeration, for both backends
 (``FitResult.outcome``; ``FitResult.result`` is the member's name). jaxopt's final state maps to:
@@ -20,6 +29,7 @@ fitted model is returned with its original leaf dtypes).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Sequence
 
 import equinox as eqx
@@ -31,7 +41,7 @@ from pmetric import PlodError
 
 from ._problem import Problem, ProblemStatic, device_args, natural_jacobian, natural_values, param_names, residuals
 
-__all__ = ["BACKENDS", "FitResult", "OUTCOMES", "SOLVERS", "fit_least_squares", "outcome_name"]
+__all__ = ["BACKENDS", "FitResult", "OUTCOMES", "SOLVERS", "fit_least_squares", "outcome_name", "solve_problem"]
 
 SOLVERS = ("lm", "gauss-newton", "bfgs")
 BACKENDS = ("optimistix", "jaxopt")
@@ -101,11 +111,21 @@ def _run_jaxopt(resid, loss, theta0, scale, solver, rtol, atol, max_steps):
 
 @eqx.filter_jit
 def _solve(theta0, fixed, arrays, st: ProblemStatic, solver: str, backend: str, rtol: float, atol: float,
-           max_steps: int):
-    """Run one solver; returns (theta, residuals, cov_natural, optx.RESULTS member, steps, grad_norm)."""
+           max_steps: int, prior=None):
+    """Run one solver; returns (theta, data residuals, cov_natural, optx.RESULTS member, steps, grad_norm).
+
+    ``prior``: None or ``(u0 (n_model,), sqrt(lambda))`` (device arrays: a new strength does not
+    recompile); its rows ``sqrt(lambda) (u - u0)`` are appended to the residuals. ``arrays["n_rows"]``
+    (when present) is the number of real rows: padding rows have weight 0 (see ``_cv``).
+    """
+    n_data = arrays["f"].shape[0]
 
     def resid(theta, args=None):
-        return residuals(theta, fixed, arrays, st)
+        r = residuals(theta, fixed, arrays, st)
+        if prior is None:
+            return r
+        u0, sq = prior
+        return jnp.concatenate([r, sq * (theta[: st.n_model] - u0)])
 
     # BFGS works on Jacobi-preconditioned coordinates z: theta = theta0 + z / sqrt(diag(J^T J)) at
     # theta0, so that its first (steepest-descent) step is sensibly scaled in every constant.
@@ -122,13 +142,15 @@ def _solve(theta0, fixed, arrays, st: ProblemStatic, solver: str, backend: str, 
     finite = jnp.all(jnp.isfinite(theta)) & jnp.all(jnp.isfinite(r))
     result = _results().where(finite, result, _results().nonfinite)
     jac = jax.jacfwd(resid)(theta)
-    n, p = r.shape[0], theta.shape[0]
-    s2 = jnp.sum(r * r) / jnp.maximum(n - p, 1)
+    rd = r[:n_data]
+    n, p = arrays.get("n_rows", n_data), theta.shape[0]
+    # n <= p: not identifiable from the data; NaN, not SSR / 1 ~ 0 (a fit through p points)
+    s2 = jnp.where(n > p, jnp.sum(rd * rd) / jnp.maximum(n - p, 1), jnp.nan)
     cov_u = jnp.linalg.pinv(jac.T @ jac, hermitian=True) * s2
     m = natural_jacobian(theta, st)
     cov = m @ cov_u @ m.T
     grad = jac.T @ r
-    return theta, r, cov, result, steps, jnp.max(jnp.abs(grad), initial=0.0)
+    return theta, rd, cov, result, steps, jnp.max(jnp.abs(grad), initial=0.0)
 
 
 # ----------------------------------------------------------------------------- results
@@ -153,7 +175,10 @@ class FitResult:
         steps: solver iterations; n_rows: rows fitted; rows: (n_data,) bool mask of the rows used;
         row_rules: the rules that chose them (see ``expressible_rows``); residuals: (n_rows,) log10
         residuals (model - data); solver, backend: what ran; grad_max: largest |gradient| of the
-        loss at the optimum; theta: the optimum in the unconstrained (log / logit) coordinates.
+        loss at the optimum; theta: the optimum in the unconstrained (log / logit) coordinates;
+        n_input_rows: rows of the input data (``n_dropped`` = those not fitted); prior_strength: the
+        lambda of the prior (0: none). With ``n_rows <= p`` the covariance and stderr are NaN
+        (``identifiable`` is False).
     """
 
     model: Any
@@ -175,6 +200,18 @@ class FitResult:
     backend: str
     grad_max: float
     theta: np.ndarray
+    n_input_rows: int = 0
+    prior_strength: float = 0.0
+
+    @property
+    def n_dropped(self) -> int:
+        """Rows of the input data not fitted (not expressible by the model, e.g. s_frequency 0)."""
+        return int(self.n_input_rows - self.n_rows)
+
+    @property
+    def identifiable(self) -> bool:
+        """More rows than free constants: the standard errors are defined (NaN otherwise)."""
+        return bool(np.all(np.isfinite(self.stderr)))
 
     @property
     def success(self) -> bool:
@@ -187,9 +224,13 @@ class FitResult:
 
     def summary(self) -> str:
         lines = [f"{type(self.model).__name__}: RMSE {self.rmse_db:.3f} dB ({self.rmse_log10:.4f} log10) "
-                 f"on {self.n_rows} rows; {self.solver}/{self.backend}: {self.result} after {self.steps} steps"]
+                 f"on {self.n_rows} rows; {self.solver}/{self.backend}: {self.result} after {self.steps} steps"
+                 + (f"; prior strength {self.prior_strength:g}" if self.prior_strength else "")]
+        if not self.identifiable:
+            lines.append(f"  not identifiable: {self.n_rows} rows for {len(self.values)} constants "
+                         "(no uncertainty can be given)")
         for name, v, se in zip(self.param_names, self.values, self.stderr):
-            lines.append(f"  {name:<28} {v: .6g}  +- {se:.3g}")
+            lines.append(f"  {name:<28} {v: .6g}" + (f"  +- {se:.3g}" if np.isfinite(se) else ""))
         return "\n".join(lines)
 
 
@@ -204,7 +245,7 @@ def _check_solver_args(solver, backend, max_steps, rtol, atol):
         raise PlodError(f"rtol and atol must be > 0, got {rtol}, {atol}")
 
 
-def _fit_result(prob: Problem, theta, r, cov, result, steps, gmax, solver, backend) -> FitResult:
+def _fit_result(prob: Problem, theta, r, cov, result, steps, gmax, solver, backend, prior_strength=0.0) -> FitResult:
     """Collect a solver's raw output (device arrays; x64 enabled) into a ``FitResult``."""
     theta = np.asarray(theta, np.float64)
     fitted = prob.theta_to_model(theta)
@@ -223,8 +264,58 @@ def _fit_result(prob: Problem, theta, r, cov, result, steps, gmax, solver, backe
         param_names=param_names(prob), values=values, covariance=cov,
         stderr=np.sqrt(np.clip(np.diag(cov), 0.0, None)), result=outcome_name(result), steps=int(steps),
         n_rows=len(r), rows=prob.mask, row_rules=list(prob.reasons), residuals=r, solver=solver,
-        backend=backend, grad_max=float(gmax), theta=theta,
+        backend=backend, grad_max=float(gmax), theta=theta, n_input_rows=len(prob.mask),
+        prior_strength=float(prior_strength),
     )
+
+
+def _check_prior_strength(prior_strength) -> float:
+    try:
+        lam = float(prior_strength)
+    except (TypeError, ValueError):
+        raise PlodError(f"prior_strength must be a number >= 0, got {prior_strength!r}") from None
+    if not (math.isfinite(lam) and lam >= 0) or isinstance(prior_strength, bool):
+        raise PlodError(f"prior_strength must be a finite number >= 0, got {prior_strength!r}")
+    return lam
+
+
+def pad_arrays(arrays: dict, n_pad: int) -> dict:
+    """``arrays`` (``Problem.arrays``) padded to ``n_pad`` rows by repeating row 0 with weight 0.
+
+    The padding rows add nothing to the residuals, the Jacobian or the gradient (their weight ``sw`` is
+    0), and ``n_rows`` keeps the real row count for the covariance: fits of different row counts padded
+    to one size share one compiled solver (cross-validation folds).
+    """
+    n = len(arrays["f"])
+    if n_pad < n:
+        raise PlodError(f"cannot pad {n} rows to {n_pad}")
+    out = {}
+    for k, a in arrays.items():
+        extra = np.zeros(n_pad - n, a.dtype) if k == "sw" else np.repeat(a[:1], n_pad - n)
+        out[k] = np.concatenate([a, extra])
+    out["n_rows"] = np.asarray(n, np.int64)
+    return out
+
+
+def solve_problem(prob: Problem, *, solver: str = "lm", backend: str = "optimistix", max_steps: int = 400,
+                  rtol: float = 1e-8, atol: float = 1e-8, prior_strength: float = 0.0,
+                  pad_to: int | None = None) -> FitResult:
+    """Least-squares fit of a built ``Problem`` (call with x64 enabled); ``pad_to``: see ``pad_arrays``.
+
+    The prior (``prior_strength > 0``) is centred on the problem's starting constants ``prob.theta0``.
+    """
+    _check_solver_args(solver, backend, max_steps, rtol, atol)
+    lam = _check_prior_strength(prior_strength)
+    fixed, arrays = device_args(prob)
+    if pad_to is not None:
+        arrays = jax.device_put(pad_arrays(prob.arrays, int(pad_to)))
+    prior = None
+    if lam > 0:
+        prior = (jnp.asarray(prob.theta0[: prob.static.n_model]), jnp.asarray(math.sqrt(lam)))
+    theta, r, cov, result, steps, gmax = _solve(jnp.asarray(prob.theta0), fixed, arrays, prob.static, solver,
+                                                backend, float(rtol), float(atol), int(max_steps), prior)
+    n = len(prob.arrays["f"])
+    return _fit_result(prob, theta, r[:n], cov, result, steps, gmax, solver, backend, lam)
 
 
 def fit_least_squares(
@@ -240,6 +331,7 @@ def fit_least_squares(
     max_steps: int = 400,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    prior_strength: float = 0.0,
 ) -> FitResult:
     """Fit ``model``'s constants to ``data`` by least squares in log10 sensitivity.
 
@@ -255,14 +347,15 @@ def fit_least_squares(
         rows: ``"auto"`` (the rows the model can express, see ``expressible_rows``), ``"all"`` or
             ``None`` (every row) or a boolean mask of shape (n,).
         max_steps, rtol, atol: solver limits and tolerances.
+        prior_strength: ``lambda >= 0`` of the Gaussian prior centred on ``model``'s constants (see the
+            module docstring; 0, the default: no prior, the plain least-squares fit).
 
     Returns:
         A ``FitResult`` (fitted model, RMSE in log10 and dB, per-dataset RMSE, covariance, outcome).
     """
     _check_solver_args(solver, backend, max_steps, rtol, atol)
+    lam = _check_prior_strength(prior_strength)
     with jax.enable_x64(True):
         prob = Problem(model, data, fit=fit, multipliers=multipliers, weighted=weighted, rows=rows)
-        fixed, arrays = device_args(prob)
-        out = _solve(jnp.asarray(prob.theta0), fixed, arrays, prob.static, solver, backend, float(rtol),
-                     float(atol), int(max_steps))
-        return _fit_result(prob, *out, solver, backend)
+        return solve_problem(prob, solver=solver, backend=backend, max_steps=max_steps, rtol=rtol, atol=atol,
+                             prior_strength=lam)

@@ -33,7 +33,8 @@ from pmetric import PlodError
 
 from ._data import CalibrationData
 from ._least_squares import fit_least_squares
-from ._priors import as_prior
+from ._least_squares import _check_prior_strength
+from ._priors import as_prior, ridge_log_prior
 from ._problem import Problem, device_args, from_u, log10_multipliers, param_names, predict_log10, residuals
 
 __all__ = ["ChainTooShortWarning", "Posterior", "conservative", "fit_mcmc"]
@@ -41,6 +42,8 @@ __all__ = ["ChainTooShortWarning", "Posterior", "conservative", "fit_mcmc"]
 _SIGMA_RANGE = (1e-4, 10.0)  # prior range of the noise s.d., log10 units
 _AUTOCORR_FACTOR = 50  # emcee's recommendation: nsteps >= 50 tau
 _PROGRESS_EVERY = 50  # sampling steps between progress calls
+#: fewest steps per walker: emcee's autocorrelation estimate is NaN below 3 (a cryptic error otherwise)
+MIN_STEPS = 3
 
 Progress = Callable[[str, int, int], None]
 
@@ -126,13 +129,20 @@ class Posterior:
 
 
 # ----------------------------------------------------------------------------- log posterior (traced)
-def _log_prior(theta, theta_ref, st, per_leaf, box):
-    """Log prior of the unconstrained vector ``theta`` (natural-value priors plus the log-Jacobian)."""
+def _log_prior(theta, theta_ref, st, per_leaf, box, ridge=None, ln_s=None):
+    """Log prior of the unconstrained vector ``theta`` (natural-value priors plus the log-Jacobian).
+
+    ``ridge``: None or ``(u0 (n_model,), lam)``: the constants without an explicit prior get
+    ``ridge_log_prior`` (needs ``ln_s``, the log noise s.d.) instead of the flat box.
+    """
     lp = jnp.zeros((), theta.dtype)
     off = 0
     for leaf, prior in zip(st.spec, per_leaf):
         u = theta[off:off + leaf.size]
-        if prior is None:
+        if prior is None and ridge is not None:
+            u0, lam = ridge
+            lp = lp + ridge_log_prior(u - u0[off:off + leaf.size], lam, ln_s)
+        elif prior is None:
             # default: flat in the unconstrained coordinate within +-box of the least-squares value
             ref = theta_ref[off:off + leaf.size]
             lp = lp + jnp.sum(jnp.where(jnp.abs(u - ref) <= box, 0.0, -jnp.inf))
@@ -149,28 +159,29 @@ def _log_prior(theta, theta_ref, st, per_leaf, box):
     return lp
 
 
-def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
+def _logpost_one(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box, ridge=None):
     """Log posterior of one coordinate vector x = (theta, [ln sigma]) (see the module docstring)."""
     n = arrays["y"].shape[0]
     ln_lo, ln_hi = math.log(_SIGMA_RANGE[0]), math.log(_SIGMA_RANGE[1])
     theta = x[: st.n_free]
-    lp = _log_prior(theta, theta_ref, st, per_leaf, box)
-    r = residuals(theta, fixed, arrays, st)
+    lp = jnp.zeros((), x.dtype)
     if sigma is None:
         ln_s = x[st.n_free]
         lp = lp + jnp.where((ln_s >= ln_lo) & (ln_s <= ln_hi), 0.0, -jnp.inf)
         ln_s = jnp.clip(ln_s, ln_lo, ln_hi)
     else:
         ln_s = jnp.log(jnp.asarray(sigma, x.dtype))
+    lp = lp + _log_prior(theta, theta_ref, st, per_leaf, box, ridge, ln_s)
+    r = residuals(theta, fixed, arrays, st)
     ll = -0.5 * jnp.sum(r * r) * jnp.exp(-2.0 * ln_s) - n * ln_s - 0.5 * n * math.log(2 * math.pi)
     out = lp + ll
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
 
 
 @eqx.filter_jit
-def _logpost_batch(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box):
+def _logpost_batch(x, theta_ref, fixed, arrays, st, per_leaf, sigma, box, ridge=None):
     """Vectorised log posterior, x of shape (nwalkers, ndim) -> (nwalkers,); compiled once per problem."""
-    return jax.vmap(lambda xi: _logpost_one(xi, theta_ref, fixed, arrays, st, per_leaf, sigma, box))(x)
+    return jax.vmap(lambda xi: _logpost_one(xi, theta_ref, fixed, arrays, st, per_leaf, sigma, box, ridge))(x)
 
 
 @eqx.filter_jit
@@ -201,13 +212,20 @@ def _log10_batch(thetas, fixed, arrays, st):
 
 
 def _build_logpost(prob: Problem, priors: Mapping[str, Any], sigma: float | None, theta_ref: np.ndarray,
-                   box: float, *, batched: bool = False):
-    """Return (log posterior of one coordinate vector -- or of a batch with ``batched`` --, dimension)."""
+                   box: float, *, batched: bool = False, prior_strength: float = 0.0):
+    """Return (log posterior of one coordinate vector -- or of a batch with ``batched`` --, dimension).
+
+    ``prior_strength > 0``: the constants without an entry in ``priors`` get ``ridge_log_prior``
+    centred on the problem's starting constants (``prob.theta0``), as ``fit_least_squares`` uses.
+    """
     st = prob.static
     fixed, arrays = device_args(prob)
     per_leaf = tuple(priors.get(leaf.name, priors.get(leaf.field)) for leaf in st.spec)
+    ridge = None
+    if prior_strength > 0:
+        ridge = (jnp.asarray(prob.theta0[: st.n_model]), float(prior_strength))
     args = (jnp.asarray(theta_ref), fixed, arrays, st, per_leaf, None if sigma is None else float(sigma),
-            float(box))
+            float(box), ridge)
     ndim = st.n_free + (1 if sigma is None else 0)
     if batched:
         return (lambda x: _logpost_batch(x, *args)), ndim
@@ -217,8 +235,11 @@ def _build_logpost(prob: Problem, priors: Mapping[str, Any], sigma: float | None
 # ----------------------------------------------------------------------------- fit_mcmc, by stage
 def _check_mcmc_args(nwalkers, nsteps, burn, thin, sigma, box, progress) -> int:
     """Validate the sampler settings; returns the burn-in."""
-    if not isinstance(nwalkers, int) or not isinstance(nsteps, int) or nsteps < 1:
+    if not isinstance(nwalkers, int) or not isinstance(nsteps, int) or nwalkers < 1:
         raise PlodError(f"nwalkers and nsteps must be positive ints, got {nwalkers!r}, {nsteps!r}")
+    if nsteps < MIN_STEPS:
+        raise PlodError(f"nsteps must be >= {MIN_STEPS} (emcee needs {MIN_STEPS} steps per walker to estimate "
+                        f"the autocorrelation time), got {nsteps}")
     burn = nsteps // 4 if burn is None else int(burn)
     if not 0 <= burn < nsteps:
         raise PlodError(f"burn must be in [0, nsteps), got {burn}")
@@ -309,6 +330,7 @@ def fit_mcmc(
     rows="auto",
     seed: int = 0,
     box: float = 10.0,
+    prior_strength: float = 0.0,
     progress: Progress | None = None,
 ) -> Posterior:
     """Sample the posterior of ``model``'s constants given thresholds ``data`` with emcee.
@@ -325,6 +347,10 @@ def fit_mcmc(
         sigma: fixed noise s.d. in log10 units (default: sampled, prior flat in ln sigma on [1e-4, 10]).
         multipliers, fit, rows: as in ``fit_least_squares``.
         seed: seeds the initial ball and emcee's random state.
+        prior_strength: lambda > 0: the constants without an entry in ``priors`` get the Gaussian
+            ``ridge_log_prior`` centred on ``model``'s constants (the prior of
+            ``fit_least_squares(prior_strength=lambda)``, whose fit is then the starting point); 0: the
+            flat box prior.
         progress: None or a callback ``progress(stage, done, total)`` (see the module docstring).
 
     Returns:
@@ -332,16 +358,23 @@ def fit_mcmc(
     """
     progress = progress or None
     burn = _check_mcmc_args(nwalkers, nsteps, burn, thin, sigma, box, progress)
+    lam = _check_prior_strength(prior_strength)
+    with jax.enable_x64(True):
+        prob = Problem(model, data, fit=fit, multipliers=multipliers, rows=rows)
+    n_rows, n_par = len(prob.data), prob.static.n_free + (1 if sigma is None else 0)
+    if n_rows <= n_par:
+        raise PlodError(f"{n_rows} usable data rows cannot sample {n_par} parameters"
+                        f"{' (the constants and sigma)' if sigma is None else ''}: need at least {n_par + 1} rows")
     if progress is not None:
         progress("least squares", 0, 1)
-    lsq = fit_least_squares(model, data, multipliers=multipliers, fit=fit, rows=rows)
+    lsq = fit_least_squares(model, data, multipliers=multipliers, fit=fit, rows=rows, prior_strength=lam)
     if progress is not None:
         progress("least squares", 1, 1)
     with jax.enable_x64(True):
-        prob = Problem(model, data, fit=fit, multipliers=multipliers, rows=rows)
         names = param_names(prob)
         priors = _check_priors(dict(priors or {}), prob, names)
-        vlogpost, ndim = _build_logpost(prob, priors, sigma, np.asarray(lsq.theta, np.float64), box, batched=True)
+        vlogpost, ndim = _build_logpost(prob, priors, sigma, np.asarray(lsq.theta, np.float64), box, batched=True,
+                                        prior_strength=lam)
         p0 = _start_ball(prob, lsq, sigma, vlogpost, ndim, nwalkers, seed)
         sampler = _sample(vlogpost, p0, nsteps, seed, progress)
         import emcee

@@ -318,7 +318,7 @@ def _known_inputs(model, sub) -> tuple[bool, bool, bool]:
 class Problem:
     """A model + data pair laid out for the solvers (float64 numpy on the host)."""
 
-    def __init__(self, model, data, *, fit=None, multipliers=False, weighted=False, rows="auto"):
+    def __init__(self, model, data, *, fit=None, multipliers=False, weighted=False, rows="auto", min_rows=True):
         _check_data(data)
         treedef, static_model, spec, leaves, _ = layout(model, fit)
         mask, reasons = select_rows(model, data, rows)
@@ -332,7 +332,7 @@ class Problem:
                                     has_lum, has_area, has_vis)
         n = len(sub)
         p = self.static.n_free
-        if n < p:
+        if min_rows and n < p:  # min_rows=False: a problem only to predict (no fit), any row count
             raise PlodError(f"{n} data rows cannot determine {p} free constants; give more data or fit= fewer")
         self.arrays = self._arrays(model, sub, weighted)
         self.leaves = leaves
@@ -342,18 +342,7 @@ class Problem:
         )
 
     def _arrays(self, model, sub, weighted) -> dict:
-        lum, area = np.asarray(sub.luminance), np.asarray(sub.area)
-        vis = np.asarray(sub.vis_field, np.float64)
-        vis_default = float(getattr(model, "vis_field", 0.0) or 0.0)
-        w = np.asarray(sub.weights, dtype=np.float64) if weighted else np.ones(len(sub))
-        return dict(
-            f=np.asarray(sub.f, np.float64), e=np.asarray(sub.e, np.float64),
-            v=np.asarray(sub.velocity, np.float64),
-            lum=np.where(np.isfinite(lum), lum, 1.0), area=np.where(np.isfinite(area), area, 1.0),
-            vis=np.where(np.isfinite(vis), vis, vis_default),
-            y=np.asarray(-sub.log_threshold, np.float64),  # log10 sensitivity
-            sw=np.sqrt(w / w.mean()), group=self.group,
-        )
+        return row_arrays(model, sub, weighted, self.group)
 
     def theta_to_model(self, theta: np.ndarray, dtype_like=True):
         """Model with the natural values of ``theta`` (numpy, float64), in the original leaf dtypes."""
@@ -367,6 +356,26 @@ class Problem:
                 out[s.index] = jnp.asarray(x.reshape(s.shape).astype(dt))
             off += s.size
         return eqx.combine(jax.tree_util.tree_unflatten(self.static.treedef, out), self.static.static_model)
+
+
+def row_arrays(model, sub, weighted: bool, group) -> dict:
+    """The per-row arrays the residuals read (float64 numpy), for the rows of ``sub``.
+
+    ``group``: (n,) int dataset index of every row (into the problem's ``group_names``). Unknown
+    luminance / area become 1 (passed to the model only when the problem's flags say so).
+    """
+    lum, area = np.asarray(sub.luminance), np.asarray(sub.area)
+    vis = np.asarray(sub.vis_field, np.float64)
+    vis_default = float(getattr(model, "vis_field", 0.0) or 0.0)
+    w = np.asarray(sub.weights, dtype=np.float64) if weighted else np.ones(len(sub))
+    return dict(
+        f=np.asarray(sub.f, np.float64), e=np.asarray(sub.e, np.float64),
+        v=np.asarray(sub.velocity, np.float64),
+        lum=np.where(np.isfinite(lum), lum, 1.0), area=np.where(np.isfinite(area), area, 1.0),
+        vis=np.where(np.isfinite(vis), vis, vis_default),
+        y=np.asarray(-sub.log_threshold, np.float64),  # log10 sensitivity
+        sw=np.sqrt(w / w.mean()), group=np.asarray(group, np.int32),
+    )
 
 
 def device_args(prob: Problem):

@@ -1,0 +1,450 @@
+"""Reddy's perceptually driven terrain quadtree [Red01 §"Perceptually based terrain"], vectorized by level.
+
+A heightfield of ``N x N`` samples (``N = 2^L + 1``) is covered by a quadtree: level ``l`` has
+``2^l x 2^l`` squares of ``2^(L-l)`` sample spacings each. Each frame starts from the single root square
+and splits, level by level, every square that is
+
+* geometrically refinable: some sample inside it leaves the plane of its two triangles (the nested
+  maximum of the vertical error is > ``tol``; a flat or planar region never splits), and
+* not culled (``cull``): its bounding box is not wholly outside the field of view, and
+* perceptible (``size``): its angular extent ``s`` (deg, largest angle between two of its four corners
+  seen from the eye) satisfies ``s >= 1 / (2 H'(v, e))`` with ``H' = min(xi, G(v) M(e))`` cycles/deg
+  from :class:`pmetric.ReddyAcuity` [Red01 Eq 4-5]. ``e`` (``periphery``) is the shortest angular
+  distance (deg) from the gaze to the square's edges (0 when the gaze falls inside it); ``v``
+  (``velocity``) is the retinal velocity (deg/s): the angle a corner travelled between successive
+  frames over the time step, averaged over the last frames, smallest over the four corners.
+
+Without ``size`` a refinable visible square always splits (``periphery`` and ``velocity`` act only
+through the size test, as in [Red01 Table 1]). The split set is then closed into a *restricted*
+quadtree (edge-adjacent leaves differ by at most one level, one bottom-up pass) and each leaf is
+triangulated as two triangles, or as a fan around its centre through the midpoints of the edges whose
+neighbour is finer: the output has no T-junctions and so no cracks. Culled leaves are not drawn.
+
+Units: heights and spacing in metres (any length unit, consistently), angles in degrees, time in
+seconds, velocity deg/s, frequency cycles/deg. Cameras: :class:`TerrainCamera` (world: x = column
+spacing, y = height, z = row spacing; right-handed, y up).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmetric import PlodError
+
+__all__ = ["Heightfield", "TerrainCamera", "TerrainCriteria", "TerrainLOD", "refine_terrain",
+           "terrain_mesh", "full_mesh", "fractal_heightfield", "crop_heightfield"]
+
+
+# ----------------------------------------------------------------------------------------------- data
+class Heightfield:
+    """A square heightfield of ``N = 2^L + 1`` samples per side with its quadtree pyramid.
+
+    ``heights`` (N, N) metres (row 0 at z = 0), ``spacing`` metres between samples. Precomputes per
+    level ``l`` (0..L) the nested maximum vertical error (m) of each square against its two triangles
+    (diagonal from corner (0, 0) to (1, 1)), and its minimum and maximum height (m) for culling.
+    Raises :class:`PlodError` for an empty grid, a grid that is not square ``2^n + 1``, non-finite
+    heights or a non-positive spacing.
+    """
+
+    def __init__(self, heights, spacing: float = 1.0):
+        h = np.asarray(heights, dtype=np.float64)
+        if h.size == 0:
+            raise PlodError("terrain: the heightfield is empty")
+        if h.ndim != 2 or h.shape[0] != h.shape[1]:
+            raise PlodError(f"terrain: the heightfield must be a square (N, N) grid, got shape {h.shape}")
+        n = h.shape[0]
+        L = int(round(math.log2(n - 1))) if n > 1 else -1
+        if n < 3 or 2 ** L + 1 != n:
+            raise PlodError(f"terrain: the heightfield must be 2^n + 1 samples per side (3, 5, 9, ..., 1025), got {n}")
+        bad = ~np.isfinite(h)
+        if bad.any():
+            r, c = np.argwhere(bad)[0]
+            raise PlodError(f"terrain: {int(bad.sum())} non-finite heights (NaN or inf), first at row {r}, column {c}")
+        sp = float(spacing)
+        if not (math.isfinite(sp) and sp > 0):
+            raise PlodError(f"terrain: spacing must be a positive number of metres, got {spacing!r}")
+        self.heights, self.spacing, self.n, self.levels = h, sp, n, L
+        self.err, self.zmin, self.zmax = _pyramid(h, L)
+
+    @property
+    def full_triangles(self) -> int:
+        """Triangles of the full-resolution mesh: 2 (N - 1)^2."""
+        return 2 * (self.n - 1) ** 2
+
+    def points(self, rows, cols):
+        """World positions (..., 3) of the samples at integer ``rows``, ``cols``."""
+        return np.stack([cols * self.spacing, self.heights[rows, cols], rows * self.spacing], axis=-1)
+
+
+def _pyramid(h, L):
+    """Per level: (nested max error, min height, max height) of each square, each (2^l, 2^l)."""
+    n = h.shape[0]
+    own = []
+    for l in range(L + 1):
+        s = 2 ** (L - l)
+        m = 2 ** l
+        if s == 1:
+            own.append(np.zeros((m, m)))
+            continue
+        st = h.strides
+        blk = np.lib.stride_tricks.as_strided(h, (m, m, s + 1, s + 1), (st[0] * s, st[1] * s, st[0], st[1]))
+        h00, h01 = blk[:, :, :1, :1], blk[:, :, :1, -1:]
+        h10, h11 = blk[:, :, -1:, :1], blk[:, :, -1:, -1:]
+        t = np.arange(s + 1) / s
+        r, c = t[:, None], t[None, :]
+        lower = h00 + c * (h01 - h00) + r * (h11 - h01)  # c >= r: triangle (0,0) (0,1) (1,1)
+        upper = h00 + r * (h10 - h00) + c * (h11 - h10)  # r > c: triangle (0,0) (1,0) (1,1)
+        plane = np.where(c >= r, lower, upper)
+        e = np.abs(blk - plane).max(axis=(2, 3))
+        own.append(np.where(e > 1e-9 * (1.0 + np.abs(h).max()), e, 0.0))  # rounding of a plane is flat
+    err = [None] * (L + 1)
+    err[L] = own[L]
+    for l in range(L - 1, -1, -1):
+        m = 2 ** l
+        err[l] = np.maximum(own[l], err[l + 1].reshape(m, 2, m, 2).max(axis=(1, 3)))
+    # min / max height of each square (samples on its border included)
+    zmin, zmax = [None] * (L + 1), [None] * (L + 1)
+    lo = np.minimum(np.minimum(h[:-1, :-1], h[1:, 1:]), np.minimum(h[:-1, 1:], h[1:, :-1]))
+    hi = np.maximum(np.maximum(h[:-1, :-1], h[1:, 1:]), np.maximum(h[:-1, 1:], h[1:, :-1]))
+    zmin[L], zmax[L] = lo, hi
+    for l in range(L - 1, -1, -1):
+        m = 2 ** l
+        zmin[l] = zmin[l + 1].reshape(m, 2, m, 2).min(axis=(1, 3))
+        zmax[l] = zmax[l + 1].reshape(m, 2, m, 2).max(axis=(1, 3))
+    del n
+    return err, zmin, zmax
+
+
+def crop_heightfield(heights, size: int, row: int | None = None, col: int | None = None) -> np.ndarray:
+    """The ``size x size`` window of ``heights`` at (row, col) (default: centred). Raises PlodError
+    when it does not fit."""
+    h = np.asarray(heights)
+    if h.ndim != 2 or h.shape[0] < size or h.shape[1] < size:
+        raise PlodError(f"terrain: cannot crop {size} x {size} from a grid of shape {h.shape}")
+    r = (h.shape[0] - size) // 2 if row is None else int(row)
+    c = (h.shape[1] - size) // 2 if col is None else int(col)
+    if r < 0 or c < 0 or r + size > h.shape[0] or c + size > h.shape[1]:
+        raise PlodError(f"terrain: crop at row {r}, column {c} of size {size} leaves the grid {h.shape}")
+    return h[r:r + size, c:c + size]
+
+
+def fractal_heightfield(n: int, *, seed: int = 0, beta: float = 2.2, relief: float = 1.0,
+                        dtype=np.float64) -> np.ndarray:
+    """Spectral-synthesis fractal terrain (fBm): white noise filtered by ``1 / f^(beta/2)`` amplitude
+    (power spectrum ``f^-beta``) and an inverse FFT, ``n x n`` samples, seeded; scaled so its heights
+    span ``relief`` (heightfield units). ``beta`` 2..3 is terrain-like [PS88] (Voss)."""
+    if n < 2:
+        raise PlodError(f"fractal_heightfield: n must be >= 2, got {n}")
+    rng = np.random.default_rng(seed)
+    m = n - 1 if n > 2 else n  # periodic on (n-1), the last row/column repeats the first
+    fx = np.fft.fftfreq(m)[:, None]
+    fy = np.fft.rfftfreq(m)[None, :]
+    f = np.hypot(fx, fy)
+    f[0, 0] = 1.0
+    amp = f ** (-beta / 2)
+    amp[0, 0] = 0.0
+    spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
+    z = np.fft.irfft2(spec, s=(m, m)).astype(dtype)
+    z = np.pad(z, ((0, n - m), (0, n - m)), mode="wrap")
+    z -= z.min()
+    return z * (relief / max(float(z.max()), 1e-300))
+
+
+# ----------------------------------------------------------------------------------------------- camera
+@dataclass(frozen=True)
+class TerrainCamera:
+    """An eye at ``eye`` (3,) looking along ``forward`` (3,) with ``up`` (3,) (world units, y up).
+
+    ``fov_deg`` (horizontal, vertical) is the angular field of view (deg; may exceed 180 horizontally: the
+    test is on azimuth and elevation, not a perspective frustum); ``gaze_deg`` (azimuth, elevation) of
+    the gaze from the forward direction (deg; right and up positive)."""
+
+    eye: np.ndarray
+    forward: np.ndarray
+    up: tuple = (0.0, 1.0, 0.0)
+    fov_deg: tuple[float, float] = (200.0, 135.0)
+    gaze_deg: tuple[float, float] = (0.0, 0.0)
+
+    def rotation(self) -> np.ndarray:
+        """(3, 3) world -> camera rows (right, up, back)."""
+        f = np.asarray(self.forward, float)
+        f = f / np.linalg.norm(f)
+        r = np.cross(f, np.asarray(self.up, float))
+        nr = np.linalg.norm(r)
+        if nr < 1e-12:
+            raise PlodError("terrain: camera up is parallel to its forward direction")
+        r /= nr
+        return np.stack([r, np.cross(r, f), -f])
+
+    def directions(self, p):
+        """Unit directions (..., 3) in camera space (x right, y up, -z forward) of world points p."""
+        d = (np.asarray(p) - np.asarray(self.eye, float)) @ self.rotation().T
+        return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+
+    def gaze(self) -> np.ndarray:
+        az, el = (math.radians(a) for a in self.gaze_deg)
+        return np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
+
+
+@dataclass(frozen=True)
+class TerrainCriteria:
+    """Which of Reddy's criteria are on [Red01 Table 1], and the display cap.
+
+    ``xi``: the display's highest frequency (cycles/deg) = 1 / (2 pixel angle in deg) [Red01 Eq 5].
+    ``velocity_deg_s``: None measures each square's retinal velocity from the previous cameras; a number
+    imposes that uniform velocity (deg/s, Figure 4's axis). ``tol``: vertical error (m) below which a
+    square counts as flat."""
+
+    size: bool = True
+    periphery: bool = True
+    velocity: bool = True
+    cull: bool = True
+    xi: float | None = None
+    velocity_deg_s: float | None = None
+    tol: float = 0.0
+
+
+@dataclass
+class TerrainLOD:
+    """One frame's refinement: ``split[l]`` (2^l, 2^l) bool for l < L (the restricted split set),
+    ``drawn[l]`` (K_l, 2) int (row, column) of the drawn leaves at level l, ``fans[l]`` (K_l, 4) bool:
+    edge (north, east, south, west) has a finer neighbour, ``triangles`` drawn, ``levels`` L."""
+
+    split: list
+    drawn: list
+    fans: list
+    triangles: int
+    levels: int
+
+
+_ACUITY_CACHE: dict = {}
+
+
+def _acuity_fn(xi):
+    """A jitted ``H'(e, v)`` of :class:`pmetric.ReddyAcuity` with display cap ``xi`` (cached)."""
+    key = None if xi is None else float(xi)
+    fn = _ACUITY_CACHE.get(key)
+    if fn is None:
+        import jax
+
+        import pmetric
+
+        model = pmetric.ReddyAcuity(xi=key)
+        fn = jax.jit(lambda e, v: jax.numpy.exp(model.log_acuity(e, v)))
+        _ACUITY_CACHE[key] = fn
+    return fn
+
+
+def _acuity(xi, e, v):
+    """H'(v, e) (cycles/deg) for arrays e, v (deg, deg/s): padded to power-of-two lengths so the jitted
+    model compiles once per bucket, not once per frame."""
+    k = len(e)
+    if k == 0:
+        return np.zeros(0)
+    b = 1 << max(6, (k - 1).bit_length())
+    ep = np.zeros(b, np.float32)
+    vp = np.zeros(b, np.float32)
+    ep[:k], vp[:k] = e, v
+    return np.asarray(_acuity_fn(xi)(ep, vp))[:k].astype(np.float64)
+
+
+def _angle(a, b):
+    """Angle (deg) between unit vectors (..., 3)."""
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+
+
+def _arc_distance(g, a, b):
+    """Shortest angle (deg) from unit direction g (3,) to the great-circle arcs a-b (K, 3)."""
+    n = np.cross(a, b)
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.maximum(nn, 1e-300)
+    q = g - (n @ g)[:, None] * n
+    qn = np.linalg.norm(q, axis=-1, keepdims=True)
+    q = q / np.maximum(qn, 1e-300)
+    on_arc = (np.sum(np.cross(a, q) * n, -1) >= 0) & (np.sum(np.cross(q, b) * n, -1) >= 0) & (nn[:, 0] > 1e-12)
+    perp = np.degrees(np.arcsin(np.clip(np.abs(n @ g), 0.0, 1.0)))
+    ends = np.minimum(_angle(a, g[None]), _angle(b, g[None]))
+    return np.where(on_arc, np.minimum(perp, ends), ends)
+
+
+def _culled(hf, cam, R, l, ii, jj):
+    """True where the square's bounding sphere (about its bounding box) lies wholly outside the field of
+    view: beyond the elevation limits, or beyond the azimuth half-planes at +-fov_x/2 (for fov_x >= 180
+    the culled back wedge is the intersection of the two outer half-spaces, below 180 their union)."""
+    s = 2 ** (hf.levels - l) * hf.spacing
+    c = np.stack([(jj + 0.5) * s, 0.5 * (hf.zmin[l][ii, jj] + hf.zmax[l][ii, jj]), (ii + 0.5) * s], -1)
+    r = np.sqrt(0.5 * s * s + 0.25 * (hf.zmax[l][ii, jj] - hf.zmin[l][ii, jj]) ** 2)
+    d = (c - np.asarray(cam.eye, float)) @ R.T
+    dist = np.linalg.norm(d, axis=-1)
+    far = dist > r
+    sin_rho = np.where(far, r / np.maximum(dist, 1e-300), 1.0)
+    u = d / np.maximum(dist, 1e-300)[:, None]
+    hx, hy = (math.radians(a / 2) for a in cam.fov_deg)
+    ca, sa = math.cos(hx), math.sin(hx)
+    out_p = u[:, 0] * ca + u[:, 2] * sa > sin_rho  # beyond the azimuth +hx half-plane
+    out_m = -u[:, 0] * ca + u[:, 2] * sa > sin_rho
+    side = (out_p & out_m) if hx >= math.pi / 2 else (out_p | out_m)
+    el = np.arcsin(np.clip(u[:, 1], -1.0, 1.0))
+    rho = np.arcsin(np.clip(sin_rho, 0.0, 1.0))
+    return far & (side | (el - rho > hy) | (el + rho < -hy))
+
+
+def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCriteria = TerrainCriteria(),
+                   previous=(), dt_s: float = 1 / 30) -> TerrainLOD:
+    """Refine ``hf`` for one frame seen by ``camera`` under ``criteria`` (see the module docstring).
+
+    ``previous``: the cameras of the preceding frames, most recent first (the retinal velocity is the
+    mean over consecutive pairs of the angle a corner moved, over ``dt_s`` seconds each); empty means
+    velocity 0. Cost: one vectorized pass per level over that level's existing squares.
+    """
+    L = hf.levels
+    if not (dt_s > 0):
+        raise PlodError(f"terrain: dt_s must be a positive time step in seconds, got {dt_s!r}")
+    R = camera.rotation()
+    Rs = [c.rotation() for c in previous]
+    g = camera.gaze()
+    split = []
+    exists_idx = (np.zeros(1, np.int64), np.zeros(1, np.int64))
+    for l in range(L):
+        m = 2 ** l
+        s = 2 ** (L - l)
+        ii, jj = exists_idx
+        ok = hf.err[l][ii, jj] > criteria.tol
+        if criteria.cull and ok.any():
+            ok[ok] = ~_culled(hf, camera, R, l, ii[ok], jj[ok])
+        if criteria.size and ok.any():
+            a, b = ii[ok], jj[ok]
+            rows = np.stack([a, a, a + 1, a + 1], -1) * s  # corners NW, NE, SE, SW (clockwise seen from above)
+            cols = np.stack([b, b + 1, b + 1, b], -1) * s
+            P = hf.points(rows, cols)  # (K, 4, 3)
+            D = camera.directions(P)
+            dots = np.stack([np.sum(D[:, i] * D[:, j], -1) for i, j in
+                             ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))], -1)
+            ext = np.degrees(np.arccos(np.clip(dots.min(-1), -1.0, 1.0)))
+            e = np.zeros(len(a))
+            if criteria.periphery:
+                e = np.min(np.stack([_arc_distance(g, D[:, i], D[:, (i + 1) % 4]) for i in range(4)], -1), -1)
+                sides = np.stack([np.cross(D[:, i], D[:, (i + 1) % 4]) @ g for i in range(4)], -1)
+                inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((D @ g) > 0).all(1)
+                e = np.where(inside, 0.0, e)
+            v = np.zeros(len(a))
+            if criteria.velocity:
+                if criteria.velocity_deg_s is not None:
+                    v = np.full(len(a), float(criteria.velocity_deg_s))
+                elif previous:
+                    prev = D
+                    acc = np.zeros(P.shape[:2])
+                    for cam_p, Rp in zip(previous, Rs):
+                        dp = (P - np.asarray(cam_p.eye, float)) @ Rp.T
+                        dp /= np.maximum(np.linalg.norm(dp, axis=-1, keepdims=True), 1e-300)
+                        acc += np.degrees(np.arccos(np.clip(np.sum(prev * dp, -1), -1.0, 1.0)))
+                        prev = dp
+                    v = (acc / (len(previous) * dt_s)).min(1)
+            H = _acuity(criteria.xi, e, v)
+            ok[ok] = ext >= 1.0 / (2.0 * H)
+        S = np.zeros((m, m), bool)
+        S[ii[ok], jj[ok]] = True
+        split.append(S)
+        a, b = ii[ok], jj[ok]
+        exists_idx = ((2 * a[:, None] + np.array([0, 0, 1, 1])).ravel(), (2 * b[:, None] + np.array([0, 1, 0, 1])).ravel())
+    _restrict(split)
+    return _leaves(hf, camera, R, criteria, split)
+
+
+def _restrict(split):
+    """Close the split set in place so that edge-adjacent leaves differ by at most one level."""
+    for l in range(len(split) - 1, 0, -1):
+        S = split[l]
+        D = S.copy()
+        D[1:] |= S[:-1]
+        D[:-1] |= S[1:]
+        D[:, 1:] |= S[:, :-1]
+        D[:, :-1] |= S[:, 1:]
+        m = S.shape[0] // 2
+        split[l - 1] |= D.reshape(m, 2, m, 2).any(axis=(1, 3))
+
+
+def _finer(S, ii, jj):
+    """(K, 4) bool: the same-level neighbour north, east, south, west of (ii, jj) exists and is split."""
+    m = S.shape[0]
+    out = np.zeros((len(ii), 4), bool)
+    for k, (di, dj) in enumerate(((-1, 0), (0, 1), (1, 0), (0, -1))):
+        a, b = ii + di, jj + dj
+        inb = (a >= 0) & (a < m) & (b >= 0) & (b < m)
+        out[inb, k] = S[a[inb], b[inb]]
+    return out
+
+
+def _leaves(hf, camera, R, criteria, split):
+    L = hf.levels
+    drawn, fans = [], []
+    tri = 0
+    for l in range(L + 1):
+        if l == 0:
+            ii, jj = np.zeros(1, np.int64), np.zeros(1, np.int64)
+        else:
+            a, b = np.nonzero(split[l - 1])
+            ii = (2 * a[:, None] + np.array([0, 0, 1, 1])).ravel()
+            jj = (2 * b[:, None] + np.array([0, 1, 0, 1])).ravel()
+        if l < L:
+            keep = ~split[l][ii, jj]
+            ii, jj = ii[keep], jj[keep]
+        if criteria.cull and len(ii):
+            keep = ~_culled(hf, camera, R, l, ii, jj)
+            ii, jj = ii[keep], jj[keep]
+        fan = _finer(split[l], ii, jj) if l < L else np.zeros((len(ii), 4), bool)
+        k = fan.sum(1)
+        tri += int(np.where(k == 0, 2, 4 + k).sum())
+        drawn.append(np.stack([ii, jj], -1))
+        fans.append(fan)
+    return TerrainLOD(split, drawn, fans, tri, L)
+
+
+def terrain_mesh(hf: Heightfield, lod: TerrainLOD):
+    """The drawn leaves as a triangle mesh: (vertices (V, 3) world, faces (F, 3), grid (V, 2) (row,
+    column) sample indices). Faces wind counter-clockwise seen from above (+y)."""
+    L = hf.levels
+    faces = []
+    for l in range(L + 1):
+        rc, fan = lod.drawn[l], lod.fans[l]
+        if not len(rc):
+            continue
+        s = 2 ** (L - l)
+        r0, c0 = rc[:, 0] * s, rc[:, 1] * s
+        h = s // 2
+        # corner / midpoint grid ids going round: NW, N, NE, E, SE, S, SW, W (row grows southwards)
+        ring_r = np.stack([r0, r0, r0, r0 + h, r0 + s, r0 + s, r0 + s, r0 + h], -1)
+        ring_c = np.stack([c0, c0 + h, c0 + s, c0 + s, c0 + s, c0 + h, c0, c0], -1)
+        ring = ring_r * hf.n + ring_c
+        centre = (r0 + h) * hf.n + (c0 + h)
+        plain = ~fan.any(1)
+        # two triangles, diagonal NW-SE as in the error pyramid: (NW, SE, NE) and (NW, SW, SE)
+        q = ring[plain]
+        faces.append(np.stack([q[:, 0], q[:, 4], q[:, 2]], -1))
+        faces.append(np.stack([q[:, 0], q[:, 6], q[:, 4]], -1))
+        f = fan[~plain]
+        q, cen = ring[~plain], centre[~plain]
+        for e in range(4):  # edge e runs ring[2e] -> ring[2e+1] -> ring[2e+2]
+            a, mid, b = q[:, 2 * e], q[:, 2 * e + 1], q[:, (2 * e + 2) % 8]
+            has = f[:, e]
+            faces.append(np.stack([cen[~has], b[~has], a[~has]], -1))
+            faces.append(np.stack([cen[has], mid[has], a[has]], -1))
+            faces.append(np.stack([cen[has], b[has], mid[has]], -1))
+    F = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
+    ids, inv = np.unique(F, return_inverse=True)
+    rows, cols = ids // hf.n, ids % hf.n
+    return hf.points(rows, cols), inv.reshape(-1, 3), np.stack([rows, cols], -1)
+
+
+def full_mesh(hf: Heightfield):
+    """The full-resolution mesh (vertices (N^2, 3), faces (2 (N-1)^2, 3)), same diagonal and winding."""
+    n = hf.n
+    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    V = hf.points(r.ravel(), c.ravel())
+    nw = (r[:-1, :-1] * n + c[:-1, :-1]).ravel()
+    ne, sw, se = nw + 1, nw + n, nw + n + 1
+    F = np.concatenate([np.stack([nw, se, ne], -1), np.stack([nw, sw, se], -1)])
+    return V, F
