@@ -27,12 +27,15 @@ This module imports only the standard library, so installing it costs nothing.
 from __future__ import annotations
 
 import _thread
+import atexit
 import contextlib
 import gc
+import os
 import signal
+import sys
 import threading
 
-__all__ = ["install", "guard", "seen", "check", "stop_raising", "Interrupted"]
+__all__ = ["install", "guard", "seen", "check", "stop_raising", "exit_process", "Interrupted"]
 
 #: delay (s) before an interrupt that arrived in a gc callback or __del__ is delivered again
 REDELIVER_S = 0.02
@@ -149,3 +152,23 @@ def guard():
             signal.signal(signal.SIGINT, prev if prev is not None else signal.default_int_handler)
             _state.installed = False
             _state.seen, _state.raising = False, True
+
+
+def exit_process(code: int) -> None:  # pragma: no cover - ends the process (tests run it in a subprocess)
+    """End the process with status ``code``, also after a handled Ctrl-C.
+
+    CPython (3.11) remembers a ``KeyboardInterrupt`` that left any ``exec`` of a string (dataclass and
+    namedtuple definitions run one: an interrupt during a lazy import of an ``eqx.Module``), even one
+    handled later, and under ``python -m`` it then ends the process by SIGINT after ``sys.exit``
+    (status -2 instead of 130; ``tests/test_fuzz.py`` shows it). For status 130 the exit handlers run
+    and the streams are flushed here, and the process ends with ``os._exit``, which nothing overrides.
+    """
+    if code != 130:
+        sys.exit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(130)

@@ -159,3 +159,11 @@ def run_main(main) -> int:
     """Run an experiment's ``main()`` as a script: user errors (bad config, missing file, bad value)
     are printed as one line naming the problem, with exit status 2, never as a traceback."""
     return report_errors(main, Path(sys.argv[0]).stem if sys.argv and sys.argv[0] else "experiment")
+
+
+def run_script(main) -> None:  # pragma: no cover - ends the process
+    """``python -m experiments.NAME``: :func:`run_main`, then end the process with its status (130 after
+    a Ctrl-C, whatever the interpreter remembers: :func:`experiments._interrupt.exit_process`)."""
+    from experiments._interrupt import exit_process
+
+    exit_process(run_main(main))

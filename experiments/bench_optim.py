@@ -200,6 +200,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    from experiments._runinfo import run_main
+    from experiments._runinfo import run_script
 
-    raise SystemExit(run_main(main))
+    run_script(main)

@@ -164,7 +164,7 @@ def entry() -> None:  # pragma: no cover - the console script (tests run it as a
         print("plod: interrupted", file=sys.stderr)
         code = 130
     _interrupt.stop_raising()  # shutting down: a late Ctrl-C can no longer change anything
-    sys.exit(code)
+    _interrupt.exit_process(code)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -48,6 +48,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from experiments._runinfo import run_main
+    from experiments._runinfo import run_script
 
-    raise SystemExit(run_main(main))
+    run_script(main)

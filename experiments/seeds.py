@@ -633,6 +633,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from experiments._runinfo import run_main
+    from experiments._runinfo import run_script
 
-    sys.exit(run_main(main))
+    run_script(main)

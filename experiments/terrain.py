@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, run_main, save_run_info
+from experiments._runinfo import load_config, repo_path, run_script, save_run_info
 from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal_heightfield, refine_terrain)
 from pmetric import PlodError, atomic_write_text
 
@@ -174,4 +173,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_main(main))
+    run_script(main)
