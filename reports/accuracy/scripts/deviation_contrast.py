@@ -21,9 +21,8 @@ def rms_dev(tree):
     k[np.asarray(tree.child_count) == 0] = 0.0
     return k
 
-class Patched:
-    """a tree whose relit fold_delta comes from a tilt of atan(scale*rms/radius) (capped by the cone)."""
 def dev_columns(tree, light, scale):
+    """relit columns whose fold_delta comes from a tilt of atan(scale * rms / radius) (capped by the cone)."""
     base = relit_columns(tree, light)
     axis, half = normal_cones(tree)
     rms = rms_dev(tree)
@@ -35,9 +34,6 @@ def dev_columns(tree, light, scale):
     delta[np.asarray(tree.child_count) == 0] = 0
     d = np.minimum(np.asarray(base["fold_delta"], float), delta)
     return dict(base, fold_delta=np.ascontiguousarray(d, np.float32))
-
-def rebuilt(v, f, c):
-    return optim.build_tree(v, f, c)
 
 def main():
     meshes = sys.argv[1].split(",")
@@ -58,7 +54,7 @@ def main():
             trees[f"dev{s:g}"] = t
         geo_rms = optim.build_tree(v, f, c)
         rms = rms_dev(geo_rms)
-        object.__setattr__(geo_rms, "geom_error", np.ascontiguousarray(rms, np.float32)) if hasattr(geo_rms, "__dataclass_fields__") else setattr(geo_rms, "geom_error", rms.astype(np.float32))
+        object.__setattr__(geo_rms, "geom_error", np.ascontiguousarray(rms, np.float32))  # frozen dataclass
         print(name, "built", time.time() - t0, flush=True)
         m = _Mesh.__new__(_Mesh); m.name, m.v, m.f, m.c = name, v, f, c; m.baked_colors = c
         T = len(f)
