@@ -221,10 +221,12 @@ class TerrainLOD:
 
 
 _ACUITY_CACHE: dict = {}
+_MIN_BUCKET, _CHUNK = 64, 1 << 16  # padded lengths 64, 128, ..., 65536; longer inputs go in chunks
 
 
 def _acuity_fn(xi):
-    """A jitted ``H'(e, v)`` of :class:`pmetric.ReddyAcuity` with display cap ``xi`` (cached)."""
+    """A jitted ``H'(e, v)`` of :class:`pmetric.ReddyAcuity` with display cap ``xi`` (cached), compiled for
+    every padded length when first made, so no frame pays for a compilation."""
     key = None if xi is None else float(xi)
     fn = _ACUITY_CACHE.get(key)
     if fn is None:
@@ -234,62 +236,169 @@ def _acuity_fn(xi):
 
         model = pmetric.ReddyAcuity(xi=key)
         fn = jax.jit(lambda e, v: jax.numpy.exp(model.log_acuity(e, v)))
+        b = _MIN_BUCKET
+        while b <= _CHUNK:
+            fn(np.zeros(b, np.float32), np.zeros(b, np.float32)).block_until_ready()
+            b *= 2
         _ACUITY_CACHE[key] = fn
     return fn
 
 
 def _acuity(xi, e, v):
-    """H'(v, e) (cycles/deg) for arrays e, v (deg, deg/s): padded to power-of-two lengths so the jitted
-    model compiles once per bucket, not once per frame."""
+    """H'(v, e) (cycles/deg) for arrays e, v (deg, deg/s), evaluated in float32 in padded power-of-two
+    buckets (at most ``_CHUNK`` long) so the jitted model compiles once per bucket, not once per frame."""
     k = len(e)
     if k == 0:
         return np.zeros(0)
-    b = 1 << max(6, (k - 1).bit_length())
-    ep = np.zeros(b, np.float32)
-    vp = np.zeros(b, np.float32)
-    ep[:k], vp[:k] = e, v
-    return np.asarray(_acuity_fn(xi)(ep, vp))[:k].astype(np.float64)
+    fn = _acuity_fn(xi)
+    out = np.empty(k)
+    for s in range(0, k, _CHUNK):
+        n = min(k - s, _CHUNK)
+        b = 1 << max(_MIN_BUCKET.bit_length() - 1, (n - 1).bit_length())
+        ep = np.zeros(b, np.float32)
+        vp = np.zeros(b, np.float32)
+        ep[:n], vp[:n] = e[s:s + n], v[s:s + n]
+        out[s:s + n] = np.asarray(fn(ep, vp))[:n]
+    return out
+
+
+def _cross(a, b):
+    """Cross product of (..., 3) arrays (np.cross without its axis shuffling)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def _angle(a, b):
     """Angle (deg) between unit vectors (..., 3)."""
-    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+    return np.degrees(np.arctan2(np.linalg.norm(_cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
 
 
 def _arc_distance(g, a, b):
     """Shortest angle (deg) from unit direction g (3,) to the great-circle arcs a-b (K, 3)."""
-    n = np.cross(a, b)
+    n = _cross(a, b)
     nn = np.linalg.norm(n, axis=-1, keepdims=True)
     n = n / np.maximum(nn, 1e-300)
     q = g - (n @ g)[:, None] * n
     qn = np.linalg.norm(q, axis=-1, keepdims=True)
     q = q / np.maximum(qn, 1e-300)
-    on_arc = (np.sum(np.cross(a, q) * n, -1) >= 0) & (np.sum(np.cross(q, b) * n, -1) >= 0) & (nn[:, 0] > 1e-12)
+    on_arc = (np.sum(_cross(a, q) * n, -1) >= 0) & (np.sum(_cross(q, b) * n, -1) >= 0) & (nn[:, 0] > 1e-12)
     perp = np.degrees(np.arcsin(np.clip(np.abs(n @ g), 0.0, 1.0)))
     ends = np.minimum(_angle(a, g[None]), _angle(b, g[None]))
     return np.where(on_arc, np.minimum(perp, ends), ends)
 
 
-def _culled(hf, cam, R, l, ii, jj):
+def _culled(hf, cam, R, l, ii, jj, inside=False):
     """True where the square's bounding sphere (about its bounding box) lies wholly outside the field of
     view: beyond the elevation limits, or beyond the azimuth half-planes at +-fov_x/2 (for fov_x >= 180
-    the culled back wedge is the intersection of the two outer half-spaces, below 180 their union)."""
+    the culled back wedge is the intersection of the two outer half-spaces, below 180 their union).
+
+    With ``inside=True`` returns (culled, contained): ``contained`` where the sphere lies wholly inside the
+    field of view, so no part of the square's box, nor of any descendant's, can be culled.
+    """
     s = 2 ** (hf.levels - l) * hf.spacing
-    c = np.stack([(jj + 0.5) * s, 0.5 * (hf.zmin[l][ii, jj] + hf.zmax[l][ii, jj]), (ii + 0.5) * s], -1)
-    r = np.sqrt(0.5 * s * s + 0.25 * (hf.zmax[l][ii, jj] - hf.zmin[l][ii, jj]) ** 2)
+    lo, hi = hf.zmin[l][ii, jj], hf.zmax[l][ii, jj]
+    c = np.stack([(jj + 0.5) * s, 0.5 * (lo + hi), (ii + 0.5) * s], -1)
+    r = np.sqrt(0.5 * s * s + 0.25 * (hi - lo) ** 2)
     d = (c - np.asarray(cam.eye, float)) @ R.T
-    dist = np.linalg.norm(d, axis=-1)
+    dist = np.sqrt(np.einsum("ki,ki->k", d, d))
     far = dist > r
     sin_rho = np.where(far, r / np.maximum(dist, 1e-300), 1.0)
     u = d / np.maximum(dist, 1e-300)[:, None]
     hx, hy = (math.radians(a / 2) for a in cam.fov_deg)
     ca, sa = math.cos(hx), math.sin(hx)
-    out_p = u[:, 0] * ca + u[:, 2] * sa > sin_rho  # beyond the azimuth +hx half-plane
-    out_m = -u[:, 0] * ca + u[:, 2] * sa > sin_rho
-    side = (out_p & out_m) if hx >= math.pi / 2 else (out_p | out_m)
+    dp = u[:, 0] * ca + u[:, 2] * sa  # signed distance (over dist) beyond the azimuth +hx half-plane
+    dm = -u[:, 0] * ca + u[:, 2] * sa
+    wide = hx >= math.pi / 2
+    side = ((dp > sin_rho) & (dm > sin_rho)) if wide else ((dp > sin_rho) | (dm > sin_rho))
     el = np.arcsin(np.clip(u[:, 1], -1.0, 1.0))
     rho = np.arcsin(np.clip(sin_rho, 0.0, 1.0))
-    return far & (side | (el - rho > hy) | (el + rho < -hy))
+    out = far & (side | (el - rho > hy) | (el + rho < -hy))
+    if not inside:
+        return out
+    margin = 1e-9
+    ins = ((dp < -sin_rho - margin) | (dm < -sin_rho - margin)) if wide else \
+        ((dp < -sin_rho - margin) & (dm < -sin_rho - margin))
+    return out, far & ins & (el + rho < hy - margin) & (el - rho > -hy + margin)
+
+
+def _unit_dirs(p, eye, R):
+    """Unit camera-space directions (..., 3) of world points p (..., 3) from ``eye`` with rotation R."""
+    d = (p - eye) @ R.T
+    return d / np.maximum(np.sqrt(np.einsum("...i,...i->...", d, d)), 1e-300)[..., None]
+
+
+def _acos_deg(x):
+    return np.degrees(np.arccos(np.clip(x, -1.0, 1.0)))
+
+
+_PAIRS = ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))
+
+
+def _corner_nodes(l, a, b):
+    """The level-l grid nodes at the corners of squares (a, b): (unique node ids on the (2^l + 1)^2 grid
+    (U,), (K, 4) index into them, corners NW, NE, SE, SW). Shared corners are computed once."""
+    m1 = 2 ** l + 1
+    lin = (a[:, None] + np.array([0, 0, 1, 1])) * m1 + (b[:, None] + np.array([0, 1, 1, 0]))
+    mask = np.zeros(m1 * m1, bool)
+    mask[lin.ravel()] = True
+    nodes = np.flatnonzero(mask)
+    pos = np.cumsum(mask) - 1
+    return nodes, pos[lin]
+
+
+def _perceptible(hf, camera, R, g, criteria, moves, dt_s, l, a, b):
+    """(K,) bool: the level-l squares (a, b) pass the size test ``s >= 1 / (2 H'(v, e))``.
+
+    Work is per unique corner (directions, retinal velocity) and the exact eccentricity (distance to the
+    edge arcs) is computed only where it can change the answer: H' is non-increasing in e and v
+    [Red01 Eq 4-5], and e lies in [max(0, c - s/2), c] with c the angle to the nearest corner and s the
+    square's extent (every edge point is within half an edge, <= s/2, of a corner); the gaze can lie inside
+    the square only where c <= s, and only those squares get the inside test.
+    """
+    L = hf.levels
+    step = 2 ** (L - l)
+    m1 = 2 ** l + 1
+    nodes, inv = _corner_nodes(l, a, b)
+    P = hf.points((nodes // m1) * step, (nodes % m1) * step)  # (U, 3)
+    eye = np.asarray(camera.eye, float)
+    DU = _unit_dirs(P, eye, R)
+    D = DU[inv]  # (K, 4, 3)
+    dots = np.stack([np.einsum("ki,ki->k", D[:, i], D[:, j]) for i, j in _PAIRS], -1)
+    ext = _acos_deg(dots.min(-1))
+    k = len(a)
+    v = np.zeros(k)
+    if criteria.velocity:
+        if criteria.velocity_deg_s is not None:
+            v = np.full(k, float(criteria.velocity_deg_s))
+        elif moves:
+            prev, acc = DU, np.zeros(len(nodes))
+            for eye_p, Rp in moves:
+                dp = _unit_dirs(P, eye_p, Rp)
+                acc += _acos_deg(np.einsum("ui,ui->u", prev, dp))
+                prev = dp
+            v = (acc / (len(moves) * dt_s))[inv].min(1)
+    if not criteria.periphery:
+        return ext >= 1.0 / (2.0 * _acuity(criteria.xi, np.zeros(k), v))
+    near = _acos_deg(DU @ g)[inv].min(1)  # angle (deg) to the nearest corner: an upper bound of e
+    lo = np.maximum(near - 0.5 * ext, 0.0)
+    hi = near.copy()
+    cand = np.flatnonzero(near <= ext * (1.0 + 1e-9) + 1e-12)
+    if len(cand):
+        Dc = D[cand]
+        sides = np.stack([_cross(Dc[:, i], Dc[:, (i + 1) % 4]) @ g for i in range(4)], -1)
+        inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((Dc @ g) > 0).all(1)
+        lo[cand[inside]] = 0.0
+        hi[cand[inside]] = 0.0
+    sure = ext >= 1.0 / (2.0 * _acuity(criteria.xi, hi, v))  # perceptible even at the largest possible e
+    out = sure.copy()
+    rest = np.flatnonzero(~sure)
+    amb = rest[ext[rest] >= 1.0 / (2.0 * _acuity(criteria.xi, lo[rest], v[rest]))]  # maybe, at the smallest e
+    if len(amb):
+        Da = D[amb]
+        e = np.min(np.stack([_arc_distance(g, Da[:, i], Da[:, (i + 1) % 4]) for i in range(4)], -1), -1)
+        out[amb] = ext[amb] >= 1.0 / (2.0 * _acuity(criteria.xi, e, v[amb]))
+    return out
 
 
 def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCriteria = TerrainCriteria(),
@@ -298,60 +407,41 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
 
     ``previous``: the cameras of the preceding frames, most recent first (the retinal velocity is the
     mean over consecutive pairs of the angle a corner moved, over ``dt_s`` seconds each); empty means
-    velocity 0. Cost: one vectorized pass per level over that level's existing squares.
+    velocity 0. Cost: one vectorized pass per level over that level's existing squares, per unique corner
+    where squares share corners; the cull test of each square is done once and reused by the leaf pass.
     """
     L = hf.levels
     if not (dt_s > 0):
         raise PlodError(f"terrain: dt_s must be a positive time step in seconds, got {dt_s!r}")
     R = camera.rotation()
-    Rs = [c.rotation() for c in previous]
+    moves = [(np.asarray(c.eye, float), c.rotation()) for c in previous]
     g = camera.gaze()
-    split = []
-    exists_idx = (np.zeros(1, np.int64), np.zeros(1, np.int64))
+    split, culled = [], [None] * (L + 1)
+    ii, jj = np.zeros(1, np.int64), np.zeros(1, np.int64)
     for l in range(L):
         m = 2 ** l
-        s = 2 ** (L - l)
-        ii, jj = exists_idx
         ok = hf.err[l][ii, jj] > criteria.tol
-        if criteria.cull and ok.any():
-            ok[ok] = ~_culled(hf, camera, R, l, ii[ok], jj[ok])
+        if criteria.cull:
+            # 0 unknown, 1 visible, 2 culled, 3 contained (its box, and every descendant's, in view)
+            cmap = np.zeros((m, m), np.int8)
+            if l:
+                cmap[ii, jj] = np.where(culled[l - 1][ii // 2, jj // 2] == 3, 3, 0)
+            test = np.flatnonzero(ok & (cmap[ii, jj] != 3))
+            if len(test):
+                c, inside = _culled(hf, camera, R, l, ii[test], jj[test], inside=True)
+                cmap[ii[test], jj[test]] = np.where(c, 2, np.where(inside, 3, 1))
+                ok[test[c]] = False
+            culled[l] = cmap
         if criteria.size and ok.any():
-            a, b = ii[ok], jj[ok]
-            rows = np.stack([a, a, a + 1, a + 1], -1) * s  # corners NW, NE, SE, SW (clockwise seen from above)
-            cols = np.stack([b, b + 1, b + 1, b], -1) * s
-            P = hf.points(rows, cols)  # (K, 4, 3)
-            D = camera.directions(P)
-            dots = np.stack([np.sum(D[:, i] * D[:, j], -1) for i, j in
-                             ((0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3))], -1)
-            ext = np.degrees(np.arccos(np.clip(dots.min(-1), -1.0, 1.0)))
-            e = np.zeros(len(a))
-            if criteria.periphery:
-                e = np.min(np.stack([_arc_distance(g, D[:, i], D[:, (i + 1) % 4]) for i in range(4)], -1), -1)
-                sides = np.stack([np.cross(D[:, i], D[:, (i + 1) % 4]) @ g for i in range(4)], -1)
-                inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((D @ g) > 0).all(1)
-                e = np.where(inside, 0.0, e)
-            v = np.zeros(len(a))
-            if criteria.velocity:
-                if criteria.velocity_deg_s is not None:
-                    v = np.full(len(a), float(criteria.velocity_deg_s))
-                elif previous:
-                    prev = D
-                    acc = np.zeros(P.shape[:2])
-                    for cam_p, Rp in zip(previous, Rs):
-                        dp = (P - np.asarray(cam_p.eye, float)) @ Rp.T
-                        dp /= np.maximum(np.linalg.norm(dp, axis=-1, keepdims=True), 1e-300)
-                        acc += np.degrees(np.arccos(np.clip(np.sum(prev * dp, -1), -1.0, 1.0)))
-                        prev = dp
-                    v = (acc / (len(previous) * dt_s)).min(1)
-            H = _acuity(criteria.xi, e, v)
-            ok[ok] = ext >= 1.0 / (2.0 * H)
+            ok[ok] = _perceptible(hf, camera, R, g, criteria, moves, dt_s, l, ii[ok], jj[ok])
         S = np.zeros((m, m), bool)
         S[ii[ok], jj[ok]] = True
         split.append(S)
         a, b = ii[ok], jj[ok]
-        exists_idx = ((2 * a[:, None] + np.array([0, 0, 1, 1])).ravel(), (2 * b[:, None] + np.array([0, 1, 0, 1])).ravel())
+        ii = (2 * a[:, None] + np.array([0, 0, 1, 1])).ravel()
+        jj = (2 * b[:, None] + np.array([0, 1, 0, 1])).ravel()
     _restrict(split)
-    return _leaves(hf, camera, R, criteria, split)
+    return _leaves(hf, camera, R, criteria, split, culled)
 
 
 def _restrict(split):
@@ -378,7 +468,7 @@ def _finer(S, ii, jj):
     return out
 
 
-def _leaves(hf, camera, R, criteria, split):
+def _leaves(hf, camera, R, criteria, split, culled):
     L = hf.levels
     drawn, fans = [], []
     tri = 0
@@ -393,7 +483,13 @@ def _leaves(hf, camera, R, criteria, split):
             keep = ~split[l][ii, jj]
             ii, jj = ii[keep], jj[keep]
         if criteria.cull and len(ii):
-            keep = ~_culled(hf, camera, R, l, ii, jj)
+            known = culled[l][ii, jj] if culled[l] is not None else np.zeros(len(ii), np.int8)
+            if l:
+                known = np.where((known == 0) & (culled[l - 1][ii // 2, jj // 2] == 3), 3, known)
+            todo = np.flatnonzero(known == 0)
+            if len(todo):
+                known[todo] = np.where(_culled(hf, camera, R, l, ii[todo], jj[todo]), 2, 1)
+            keep = (known == 1) | (known == 3)
             ii, jj = ii[keep], jj[keep]
         fan = _finer(split[l], ii, jj) if l < L else np.zeros((len(ii), 4), bool)
         k = fan.sum(1)
