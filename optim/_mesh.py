@@ -215,7 +215,9 @@ def _check_scale(v: np.ndarray, name: str) -> None:
     if big > COORD_MAX:
         raise PlodError(f"{name}: coordinates up to {big:.3g} object units; plod's float32 scoring supports "
                         f"|coordinate| <= {COORD_MAX:g}{hint}")
-    if 0.0 < diag < DIAGONAL_MIN:
+    if diag == 0.0:
+        raise PlodError(f"{name}: all vertices coincide (bounding-box diagonal 0): there is no surface to see")
+    if diag < DIAGONAL_MIN:
         raise PlodError(f"{name}: bounding-box diagonal {diag:.3g} object units; plod's float32 scoring "
                         f"supports diagonals >= {DIAGONAL_MIN:g}{hint}")
 

@@ -211,8 +211,10 @@ def model_from_dict(d: Any, *, _where: str = "model", _source: str = "load_model
 
 def save_model(model: eqx.Module, path: str | os.PathLike) -> Path:
     """Write ``model`` to ``path`` as JSON, atomically; returns the path. PlodError (nothing written) for
-    a non-finite constant, an unregistered class or a value JSON cannot hold."""
+    a non-finite constant, an unregistered class, a value JSON cannot hold, or anything :func:`load_model`
+    would refuse (a constant outside the class's ``param_bounds``: the file is checked as it will be read)."""
     doc = {"format": FORMAT, "version": VERSION, "model": model_to_dict(model)}
+    model_from_dict(doc["model"], _source="save_model")  # never write a file that cannot be loaded
     try:
         text = json.dumps(doc, indent=1, allow_nan=False)
     except ValueError as exc:  # a NaN or infinite static value

@@ -66,6 +66,7 @@ def files(tmp_path, monkeypatch):
     (tmp_path / "afile.ply").write_bytes(b"a file, not a folder")
     (tmp_path / "latin1.obj").write_bytes("# caf\xe9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n"
                                           "f 1 4 2\nf 2 4 3\n".encode("latin-1"))
+    (tmp_path / "point.obj").write_text("v 0 0 0\nv 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\nf 1 3 4\n")
     return d
 
 
@@ -78,6 +79,9 @@ CLI_CASES = [
     # 2: fit overwrote its own start model / wrote JSON into a .ply
     ("2-fit-own-model", ["fit", "{csv}", "--model", "{start}", "--out", "{start}"], 2, ["--out", "the input model"]),
     ("2-fit-ply-out", ["fit", "{csv}", "--model", "kellyabstract", "--out", "{dir}/x.ply"], 2, ["--out", ".json"]),
+    # 3: a mesh whose vertices all coincide (what a x1e-20 export rounds to) was "imperceptible" at distance 0
+    ("3-zero-extent", ["simplify", "{dir}/point.obj", "--imperceptible", "--json"], 2, ["all vertices coincide"]),
+    ("3-zero-extent-budget", ["simplify", "{dir}/point.obj", "--budget", "1"], 2, ["all vertices coincide"]),
     # 7: output paths checked after the work
     ("7-out-below-a-file", ["simplify", "{mesh}", "--budget", "50", "--out", "{dir}/afile.ply/x.ply"], 2,
      ["--out", "not a folder"]),

@@ -210,3 +210,14 @@ def test_save_refuses_non_finite_constants(tmp_path):
     assert not (tmp_path / "bad.json").exists()
     good = save_model(pmetric.KellyAbstract(), tmp_path / "good.json").read_text()
     assert "NaN" not in good and "Infinity" not in good
+
+
+def test_save_refuses_what_load_would_refuse(tmp_path):
+    """A constant the constructor accepts but the file's bounds refuse (KellyAbstract delta 1e-7 < 1e-6) is
+    refused at save time, naming it: save never writes a file load_model cannot read."""
+    m = pmetric.KellyAbstract(delta=1e-7)
+    with pytest.raises(pmetric.PlodError, match=r"save_model: KellyAbstract.delta must be >= 1e-06, got 1(\.0+\d*)?e-07"):
+        save_model(m, tmp_path / "m.json")
+    assert not (tmp_path / "m.json").exists()
+    ok = save_model(pmetric.KellyAbstract(delta=2e-6), tmp_path / "ok.json")
+    assert float(load_model(ok).delta) == pytest.approx(2e-6, rel=1e-6)
