@@ -24,7 +24,9 @@ from pmetric import PlodError, atomic_write_text
 DEFAULTS = {"kind": "terrain", "out": "reports/terrain", "seed": 0, "fractal_size": 1025,
             "fractal_spacing_m": 10.0, "fractal_relief_m": 600.0, "flight": "configs/terrain_flight.toml",
             "frame_step": 10, "resolution": [1280, 864], "fig4_velocities": [0.0, 30.0, 60.0, 90.0, 120.0],
-            "fig4_fovs": [30.0, 60.0, 90.0, 135.0, 180.0], "fig4_frame_step": 60}
+            "fig4_fovs": [30.0, 60.0, 90.0, 135.0, 180.0], "fig4_frame_step": 60,
+            "pixel_errors": [1, 2, 4, 8], "scale_size": 0, "scale_frames": 3,
+            "judge_frames": [], "judge_px_per_deg": 0.0}
 FLIGHT = {"duration_s": 20.0, "fps": 30.0, "orbit_frac": 0.3, "orbit_turns": 0.5, "altitude_m": 150.0,
           "pitch_deg": -20.0, "yaw_amp_deg": 50.0, "yaw_period_s": 4.0, "fov_deg": [200.0, 135.0]}
 # seed 000 Table 1: (size, periphery, velocity, cull) -> % of the full terrain
@@ -63,6 +65,7 @@ def run_flight(hf, cams, crit, fps, step, progress=None, label=""):
     """(triangles per refined frame, seconds per refinement) over every ``step``-th frame."""
     tris, secs = [], []
     frames = list(range(3, len(cams), step))
+    refine_terrain(hf, cams[3], crit, (cams[2], cams[1], cams[0]), dt_s=1.0 / fps)  # warm-up: compiles H'(v, e)
     for i, k in enumerate(frames):
         prev = (cams[k - 1], cams[k - 2], cams[k - 3])
         t0 = time.perf_counter()
@@ -116,6 +119,8 @@ def run_config(path, out=None, progress=None) -> Path:
                          f"{100 * tris.mean() / hf.full_triangles:.2f} | {seed_pct} | {1e3 * np.median(secs):.1f} | "
                          f"{1e3 * secs.max():.1f} |")
         lines.append("")
+        lines += _pixel_sweep(hf, cams, cfg, fl, xi, progress, name)
+        lines += _judged_section(hf, cams, cfg, fl, xi, out, name, progress)
         if name.startswith("fractal"):
             fig = _figure4(hf, fl, cfg, xi, progress)
             _save_fig4(out / "fig4.png", fig, cfg)
@@ -126,11 +131,145 @@ def run_config(path, out=None, progress=None) -> Path:
             for i, v in enumerate(cfg["fig4_velocities"]):
                 lines.append(f"| {v:g} | " + " | ".join(f"{x:,.0f}" for x in fig[i]) + " |")
             lines.append("")
-    lines += ["Rendered frames judged with JOD: not done yet (issue 12: the 200-degree field of view needs a "
-              "renderable field of view for the judge).", ""]
+    if cfg["scale_size"]:
+        lines += _scale_test(cfg, fl, xi, progress)
     atomic_write_text(out / "table1.md", "\n".join(lines))
     save_run_info(out, {"config": cfg, "flight": fl}, cfg["seed"], "python -m experiments.terrain " + str(path))
     return out
+
+
+def _pixel_sweep(hf, cams, cfg, fl, xi, progress, name):
+    """Table rows: size + cull and all criteria with the display cap xi / k (screen-space errors up to k
+    pixels [Red01 Eq 5]: "by halving xi, we allow screen-space errors of up to 2 pixels")."""
+    if not cfg["pixel_errors"]:
+        return []
+    out = ["Screen-space error allowed (xi / k, up to k pixels [Red01 Eq 5]), same flight:", "",
+           "| k pixels | xi cycles/deg | size + cull: triangles / frame | % | all criteria: triangles / frame | % "
+           "| all: ms / frame median | worst |", "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for k in cfg["pixel_errors"]:
+        x = xi / float(k)
+        sc, _ = run_flight(hf, cams, TerrainCriteria(periphery=False, velocity=False, xi=x), fl["fps"],
+                           cfg["frame_step"], progress, f"{name} xi/{k}")
+        al, secs = run_flight(hf, cams, TerrainCriteria(xi=x), fl["fps"], cfg["frame_step"], progress, f"{name} xi/{k}")
+        out.append(f"| {k} | {x:.2f} | {sc.mean():,.0f} | {100 * sc.mean() / hf.full_triangles:.2f} | {al.mean():,.0f} | "
+                   f"{100 * al.mean() / hf.full_triangles:.2f} | {1e3 * np.median(secs):.1f} | {1e3 * secs.max():.1f} |")
+    return out + [""]
+
+
+def _judged_section(hf, cams, cfg, fl, xi, out, name, progress):
+    """Table rows: rendered frames judged against the full terrain (:func:`judge_frames`), PNGs in ``out``."""
+    if not cfg["judge_frames"]:
+        return []
+    try:
+        import pyfvvdp  # noqa: F401
+    except ImportError:
+        return ["Rendered frames: not judged (the judge extra is missing: pip install -e '.[judge]').", ""]
+    ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi
+    crits = {"cull": TerrainCriteria(size=False, periphery=False, velocity=False, xi=xi),
+             "size + cull": TerrainCriteria(periphery=False, velocity=False, xi=xi),
+             "size + periphery + cull": TerrainCriteria(velocity=False, xi=xi), "all": TerrainCriteria(xi=xi)}
+    tag = name.replace(" ", "_").lower()
+    try:
+        rows = judge_frames(hf, cams, crits, cfg["judge_frames"], fl["fps"], out_dir=out / f"frames_{tag}",
+                            px_per_deg=ppd, progress=progress)
+    except RuntimeError as exc:  # no OpenGL context
+        return [f"Rendered frames: not judged ({exc}).", ""]
+    v = terrain_view(cams[cfg["judge_frames"][0]], px_per_deg=ppd)
+    lines = [f"Rendered frames judged against the full terrain ({hf.full_triangles:,} triangles): FovVideoVDP "
+             f"[Man21] foveated at the gaze (view centre) and FLIP [And20] on a {v.width} x {v.height} pinhole "
+             f"window 90 x 60 deg around the view direction at {ppd:.1f} px/deg (the seed's 200 x 135 deg has no "
+             f"pinhole rendering), relit from each mesh's own normals; a still frame, so the judge sees no retinal "
+             f"motion (the velocity criterion is judged at its worst). PNGs in `frames_{tag}/`.", "",
+             "| frame | criteria | triangles | JOD | FLIP mean |", "| ---: | --- | ---: | ---: | ---: |"]
+    for r in rows:
+        lines.append(f"| {r['frame']} | {r['criteria']} | {r['triangles']:,} | {r['jod']:.3f} | {r['flip']:.4f} |")
+    return lines + [""]
+
+
+def _scale_test(cfg, fl, xi, progress):
+    """The scale test: build time and a few refined frames of a ``scale_size`` fractal."""
+    n = int(cfg["scale_size"])
+    t0 = time.perf_counter()
+    z = fractal_heightfield(n, seed=cfg["seed"], relief=cfg["fractal_relief_m"] * (n - 1) / (cfg["fractal_size"] - 1))
+    t1 = time.perf_counter()
+    hf = Heightfield(z, cfg["fractal_spacing_m"])
+    t2 = time.perf_counter()
+    cams = flight_cameras(hf, fl)
+    step = max(1, (len(cams) - 4) // max(1, int(cfg["scale_frames"])))
+    out = [f"## Scale test: fractal {n} x {n} ({hf.full_triangles:,} triangles; same spacing, relief "
+           f"scaled with the side, the orbit a fraction of the side)", "",
+           f"Synthesis {t1 - t0:.1f} s, quadtree pyramid {t2 - t1:.1f} s; {int(cfg['scale_frames'])} frames "
+           f"{step} frames apart.", "",
+           "| criteria | mean triangles / frame | % of full | ms / frame median | worst |",
+           "| --- | ---: | ---: | ---: | ---: |"]
+    for label, crit in (("cull", TerrainCriteria(size=False, periphery=False, velocity=False, xi=xi)),
+                        ("size + cull", TerrainCriteria(periphery=False, velocity=False, xi=xi)),
+                        ("all", TerrainCriteria(xi=xi))):
+        tris, secs = run_flight(hf, cams, crit, fl["fps"], step, progress, f"scale {n}")
+        out.append(f"| {label} | {tris.mean():,.0f} | {100 * tris.mean() / hf.full_triangles:.2f} | "
+                   f"{1e3 * np.median(secs):.1f} | {1e3 * secs.max():.1f} |")
+    return out + [""]
+
+
+def terrain_view(camera: TerrainCamera, *, fov_deg=(90.0, 60.0), px_per_deg: float = 6.4, distance_m: float = 0.6):
+    """An ``optim.View`` of a renderable window of ``camera``: a pinhole image ``fov_deg`` (horizontal,
+    vertical; deg, each < 180) wide centred on the camera's forward direction, with ``px_per_deg`` pixels
+    per degree at its centre (default 6.4 = 2 xi for the seed's 1280 px over 200 deg [Red01 Eq 5]), on a
+    flat display ``distance_m`` (m) from the eye sized to match. The gaze is the camera's (the screen
+    centre for ``gaze_deg = (0, 0)``); near plane 1 m, target 1 km along the view (world units m).
+
+    The seed's 200 x 135 deg field of view has no pinhole rendering, so frames are judged in this
+    window; every square in it was refined for the full field (the cull keeps what the window shows).
+    """
+    import optim
+    import pmetric as pm
+
+    fh, fv = (float(a) for a in fov_deg)
+    if not (0 < fh < 180 and 0 < fv < 180) or not px_per_deg > 0:
+        raise PlodError(f"terrain: judged window must be in (0, 180) deg and px_per_deg > 0, got {fov_deg!r}, "
+                        f"{px_per_deg!r}")
+    pitch = distance_m * math.tan(math.radians(1.0 / px_per_deg))  # m per pixel at the screen centre
+    w, h = (max(2, int(round(2 * distance_m * math.tan(math.radians(a / 2)) / pitch))) for a in (fh, fv))
+    display = pm.Display(width=w * pitch, height=h * pitch, resolution=(w, h), distance=distance_m)
+    R = camera.rotation()  # rows: right, up, back (world)
+    eye = np.asarray(camera.eye, float)
+    gaze = "center" if tuple(camera.gaze_deg) == (0.0, 0.0) else (R.T @ camera.gaze())[None]
+    return optim.View(eye=eye, target=eye - 1000.0 * R[2], up=R[1], display=display, image_size=(w, h),
+                      gaze=gaze, near=1.0)
+
+
+def judge_frames(hf, cams, criteria: dict, frames, fps, *, out_dir=None, size=None, px_per_deg=6.4,
+                 progress=None) -> list[dict]:
+    """Render frames of the flight and judge each criteria set's terrain against the full terrain.
+
+    ``criteria``: {label: TerrainCriteria}; ``frames``: frame indices (>= 3: three previous cameras give
+    the velocity); relit from the meshes' own normals with ``optim.Lighting``'s default; FovVideoVDP
+    foveated at the camera's gaze [Man21] and FLIP [And20] (:func:`experiments.judge.judge`) on
+    :func:`terrain_view`. Returns rows {frame, criteria, triangles, jod, flip}; with ``out_dir`` writes
+    ``frame{k}_{label}.png`` (renderings and difference maps) there.
+    """
+    from experiments.judge import judge, save_judgement
+    from optim._terrain import full_mesh, terrain_mesh
+
+    full = full_mesh(hf) + (None,)
+    rows, n = [], len(frames) * len(criteria)
+    for k in frames:
+        if not 3 <= int(k) < len(cams):
+            raise PlodError(f"terrain: judged frame {k} outside 3..{len(cams) - 1} of the flight")
+        view = terrain_view(cams[k], px_per_deg=px_per_deg)
+        prev = (cams[k - 1], cams[k - 2], cams[k - 3])
+        for label, crit in criteria.items():
+            lod = refine_terrain(hf, cams[k], crit, prev, dt_s=1.0 / fps)
+            V, F, _ = terrain_mesh(hf, lod)
+            res = judge(full, (V, F, None), view, mode="relit", size=size)
+            rows.append({"frame": int(k), "criteria": label, "triangles": lod.triangles, "jod": res.jod,
+                         "flip": res.flip_mean})
+            if out_dir is not None:
+                save_judgement(Path(out_dir) / f"frame{k}_{label.replace(' + ', '_')}.png", res,
+                               titles=("full terrain", f"{label}: {lod.triangles:,} triangles"))
+            if progress:
+                progress("judged frames", len(rows), n)
+    return rows
 
 
 def _figure4(hf, fl, cfg, xi, progress):
