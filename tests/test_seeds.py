@@ -104,3 +104,10 @@ def test_fig8_counts_on_the_seed_bunny(shared_dir):
     assert len(f) == S.SEED_COUNTS["fig8"]["LH01 Fig 8 (gaze 29 deg from the centre)"][0]
     v, f, _ = optim.load_mesh(shared_dir / "data" / "meshes" / "horse.ply")
     assert len(f) == S.SEED_COUNTS["fig9"]["input"]
+
+
+def test_fig8_verdict_follows_the_judge():
+    """The verdict column: imperceptible at >= 9.8 JOD, else visible with the JOD lost; None: not judged."""
+    assert S._verdict(9.8) == "imperceptible" and S._verdict(9.97) == "imperceptible"
+    assert S._verdict(9.5) == "visible (0.50 JOD below the original)"
+    assert S._verdict(None) == "not judged"
