@@ -236,6 +236,10 @@ def test_pareto_plot_points_are_the_rows_values(tmp_path, reference):
     idx = _front_brute(x, y)
     np.testing.assert_allclose(data["front"], np.stack([x[idx], y[idx]], 1))
     assert data["front_cells"] == [use[i]["cell"] for i in idx]
+    for b, cells in data["budget_fronts"].items():  # each budget's front is the brute-force front of its rows
+        sel = [i for i, r in enumerate(use) if str(r["budget"]) == b]
+        assert sel and cells == [use[sel[k]]["cell"] for k in _front_brute(x[sel], y[sel])]
+    assert sorted(data["budget_fronts"]) == sorted({str(r["budget"]) for r in use})
     # JOD rows: the error is 10 - JOD
     jrows = [{**r, "jod": 10.0 - r["distance"] / 100.0} for r in use]
     d2 = R.plot_time_vs_error(jrows, tmp_path / "t2.png")
