@@ -365,9 +365,8 @@ def test_tiny_and_coincident_meshes(method):
     one = optim.build_tree(TET_V[:3], [[0, 1, 2]], method=method)  # a single triangle
     one.check()
     assert one.num_subtris.sum() == 1 and one.n_vertices == 3
-    flat = optim.build_tree(np.zeros((3, 3)), [[0, 1, 2]], method=method)  # zero-area, all coincident
-    flat.check()
-    assert np.all(flat.radius == 0) and flat.mesh_report["zero_area"] == 1
+    with pytest.raises(ValueError, match="all vertices coincide"):  # PlodError is a ValueError
+        optim.build_tree(np.zeros((3, 3)), [[0, 1, 2]], method=method)  # no surface: refused, not "imperceptible"
     v, f = optim.icosphere(1)  # two coincident copies: separate vertices at identical positions
     t = optim.build_tree(np.concatenate([v, v]), np.concatenate([f, f + len(v)]), method=method)
     t.check()
