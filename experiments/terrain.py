@@ -138,6 +138,13 @@ def run_config(path, out=None, progress=None) -> Path:
     return out
 
 
+def named_criteria(xi) -> dict:
+    """{label: TerrainCriteria} of the judged and scale-test rows at display cap ``xi`` (cycles/deg)."""
+    return {"cull": TerrainCriteria(size=False, periphery=False, velocity=False, xi=xi),
+            "size + cull": TerrainCriteria(periphery=False, velocity=False, xi=xi),
+            "size + periphery + cull": TerrainCriteria(velocity=False, xi=xi), "all": TerrainCriteria(xi=xi)}
+
+
 def _pixel_sweep(hf, cams, cfg, fl, xi, progress, name):
     """Table rows: size + cull and all criteria with the display cap xi / k (screen-space errors up to k
     pixels [Red01 Eq 5]: "by halving xi, we allow screen-space errors of up to 2 pixels")."""
@@ -148,9 +155,9 @@ def _pixel_sweep(hf, cams, cfg, fl, xi, progress, name):
            "| all: ms / frame median | worst |", "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for k in cfg["pixel_errors"]:
         x = xi / float(k)
-        sc, _ = run_flight(hf, cams, TerrainCriteria(periphery=False, velocity=False, xi=x), fl["fps"],
-                           cfg["frame_step"], progress, f"{name} xi/{k}")
-        al, secs = run_flight(hf, cams, TerrainCriteria(xi=x), fl["fps"], cfg["frame_step"], progress, f"{name} xi/{k}")
+        crits = named_criteria(x)
+        sc, _ = run_flight(hf, cams, crits["size + cull"], fl["fps"], cfg["frame_step"], progress, f"{name} xi/{k}")
+        al, secs = run_flight(hf, cams, crits["all"], fl["fps"], cfg["frame_step"], progress, f"{name} xi/{k}")
         out.append(f"| {k} | {x:.2f} | {sc.mean():,.0f} | {100 * sc.mean() / hf.full_triangles:.2f} | {al.mean():,.0f} | "
                    f"{100 * al.mean() / hf.full_triangles:.2f} | {1e3 * np.median(secs):.1f} | {1e3 * secs.max():.1f} |")
     return out + [""]
@@ -165,9 +172,7 @@ def _judged_section(hf, cams, cfg, fl, xi, out, name, progress):
     except ImportError:
         return ["Rendered frames: not judged (the judge extra is missing: pip install -e '.[judge]').", ""]
     ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi
-    crits = {"cull": TerrainCriteria(size=False, periphery=False, velocity=False, xi=xi),
-             "size + cull": TerrainCriteria(periphery=False, velocity=False, xi=xi),
-             "size + periphery + cull": TerrainCriteria(velocity=False, xi=xi), "all": TerrainCriteria(xi=xi)}
+    crits = named_criteria(xi)
     tag = name.replace(" ", "_").lower()
     try:
         rows = judge_frames(hf, cams, crits, cfg["judge_frames"], fl["fps"], out_dir=out / f"frames_{tag}",
@@ -202,9 +207,8 @@ def _scale_test(cfg, fl, xi, progress):
            f"{step} frames apart.", "",
            "| criteria | mean triangles / frame | % of full | ms / frame median | worst |",
            "| --- | ---: | ---: | ---: | ---: |"]
-    for label, crit in (("cull", TerrainCriteria(size=False, periphery=False, velocity=False, xi=xi)),
-                        ("size + cull", TerrainCriteria(periphery=False, velocity=False, xi=xi)),
-                        ("all", TerrainCriteria(xi=xi))):
+    for label in ("cull", "size + cull", "all"):
+        crit = named_criteria(xi)[label]
         tris, secs = run_flight(hf, cams, crit, fl["fps"], step, progress, f"scale {n}")
         out.append(f"| {label} | {tris.mean():,.0f} | {100 * tris.mean() / hf.full_triangles:.2f} | "
                    f"{1e3 * np.median(secs):.1f} | {1e3 * secs.max():.1f} |")
