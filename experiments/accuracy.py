@@ -58,7 +58,8 @@ DEFAULTS = {
     "lightings": ["relit", "baked"],
     "budgets": [0.03, 0.08, 0.20],
     "model_budget": 0.08,
-    "models": ["reports/fit_real/fitted_stelacsf.json", "reports/fit_real/fitted_barten.json"],
+    # beside the default (stelaCSF): the seeds' model, plod's default before, and the refits
+    "models": ["kellyabstract", "reports/fit_real/fitted_stelacsf.json", "reports/fit_real/fitted_barten.json"],
     "size": [960, 540],
     "worst": 3,
 }
@@ -337,7 +338,10 @@ def write_report(rows, cfg, command, out, images=()):
         L.append("| --- |" + " ---: |" * len(names))
         for lighting, d in summ["models"].items():
             L.append(f"| {lighting} | " + " | ".join(_fmt(d.get(m), 3) for m in names) + " |")
-        L.append("\n`perceptual` is the default model (KellyAbstract); `model:NAME` the same cut with that model.\n")
+        import pmetric
+
+        L.append(f"\n`perceptual` is the default model (`{pmetric.DEFAULT_MODEL}`, "
+                 f"{type(pmetric.default_model()).__name__}); `model:NAME` the same cut with that model.\n")
     before = _before_rows(out)
     if before:
         L += _before_table(rows, before)

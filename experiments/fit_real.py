@@ -520,14 +520,14 @@ def recommendation(cvres, heldout) -> list[str]:
 
 
 DEFAULTS_NOTE = (
-    "What plod uses by default today: `pmetric.DEFAULT_MODEL` = `kellyabstract` (the seeds' model [LHNW00 "
-    "Eq 1-2], its eccentricity term alpha = (1 + 0.29 e) f) for `plod simplify` and the "
-    "library, and `--prior none` (plain least squares) for `plod fit`. It is not the model held-out periphery "
-    "error recommends: the regression pin, the judged accuracy results (reports/accuracy) and the speed "
-    "benchmarks were measured with it, and switching the default is a judged decision that belongs to the "
-    "accuracy issue (there, 8 % budget cuts with the refitted stelaCSF scored 9.246 against KellyAbstract's 9.120 median JOD relit, reports/accuracy/report.md). "
-    "For gaze-directed LOD with measured observers, use `--model stela` (published constants) or a fit with "
-    "`--prior cv`, which this table supports.")
+    "What plod uses by default: `pmetric.DEFAULT_MODEL` = `stela`, stelaCSF with its published constants "
+    "[MAC22] (no refit: prior strength infinite), for `plod simplify`, the experiments and the library; the "
+    "least held-out periphery error above decides it, and the image judge agrees: with it plod's budget cuts "
+    "score higher than with the seeds' KellyAbstract, plod's default before, in 95 of 108 cells of the "
+    "accuracy sweep (reports/accuracy/default_model.md). The seeds' reproductions keep KellyAbstract. "
+    "`plod fit` defaults to `--prior none` (plain least squares: the constants of the data given); use "
+    "`--prior cv` for a fit that will be used where the data has no rows (the periphery), as this table "
+    "supports.")
 
 
 def standing_section(ach, alt, backend) -> list[str]:

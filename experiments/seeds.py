@@ -36,6 +36,14 @@ import numpy as np
 
 from pmetric import PlodError, atomic_write_text
 
+
+def seed_model():
+    """The seeds' CSF: Kelly's abstract CSF with its defaults [LHNW00 Eq 1-2] (plod's default model is
+    stelaCSF since the held-out and judged comparisons; the reproductions keep the seeds' own)."""
+    import pmetric
+
+    return pmetric.KellyAbstract()
+
 REGIONS = ("silhouette", "interior", "low contrast", "hidden")
 SECTIONS = ("fig9", "fig8", "distance", "arch")
 
@@ -244,7 +252,7 @@ def run_fig9(cfg, out: Path, progress=None) -> dict:
         regions = face_regions(v, f, c, view, lighting=view.lighting, low_quantile=cfg["low_contrast_quantile"],
                                silhouette_cos=cfg["silhouette_cos"])
         t0 = time.perf_counter()
-        pk = optim.score(tree, view)
+        pk = optim.score(tree, view, seed_model())
         score_s = time.perf_counter() - t0
         rows = {"original": {"triangles": int(len(f)), "regions": region_counts(regions, np.arange(len(f)))}}
         images, meshes = {}, {}
@@ -387,7 +395,7 @@ def run_fig8(cfg, out: Path, progress=None) -> dict:
             regions = face_regions(v, f, c, view, lighting=view.lighting,
                                    low_quantile=cfg["low_contrast_quantile"], silhouette_cos=cfg["silhouette_cos"])
             t0 = time.perf_counter()
-            pk = optim.score(tree, view)
+            pk = optim.score(tree, view, seed_model())
             cut = optim.threshold_cut(tree, pk, 1.0)
             cut_ms = 1e3 * (time.perf_counter() - t0)
             row = {"lighting": lighting, "gaze_deg": float(g), "triangles": int(cut.triangles),
@@ -487,7 +495,7 @@ def run_distance(cfg, out: Path, progress=None) -> dict:
         direction, up = _VIEWS.get(mesh_name, ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)))
         for lighting in lightings:
             view = seed_view(v, cfg, lighting, 0.0, direction, up)
-            pk = optim.score(tree, view)
+            pk = optim.score(tree, view, seed_model())
             cuts = distance_cuts(tree, pk, cd["multiples"])
             worst = None
             for m, cut in zip(cd["multiples"], cuts):

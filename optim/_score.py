@@ -31,6 +31,8 @@ scalar code. All chunks are dispatched before any result is read. Speed: see ``r
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
 from typing import NamedTuple
 
 import equinox as eqx
@@ -120,12 +122,17 @@ _TABLES: dict = {}
 _BANDS: dict = {}
 
 
-def _per_model(cache: dict, model, build):
-    """``build(model)``, cached in ``cache`` by the model's type, structure and constants (at most 17
-    entries: the cache is emptied beyond that)."""
+def _model_key(model) -> tuple:
+    """The model's type, structure and constants (bytes): what the per-model caches are keyed by."""
     leaves = jax.tree_util.tree_leaves(model)
-    key = (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
-           tuple(np.asarray(x).tobytes() for x in leaves))
+    return (type(model).__qualname__, str(jax.tree_util.tree_structure(model)),
+            tuple(np.asarray(x).tobytes() for x in leaves))
+
+
+def _per_model(cache: dict, model, build):
+    """``build(model)``, cached in ``cache`` by :func:`_model_key` (at most 17 entries: the cache is
+    emptied beyond that)."""
+    key = _model_key(model)
     if key not in cache:
         if len(cache) > 16:
             cache.clear()
@@ -133,8 +140,48 @@ def _per_model(cache: dict, model, build):
     return cache[key]
 
 
+#: The key table of :func:`default_model` shipped with plod: stelaCSF's takes about 10 s to build (an
+#: iterative distance solve per entry, 5 s of it XLA compilation), once per process. Used only when the
+#: model and the grid are those it was built for (:func:`_table_digest`); ``tests/test_score.py`` checks
+#: it against a fresh build. Rewrite it after a change to the default model, its constants or the
+#: grid: ``.venv/bin/python -c "from optim._score import write_shipped_table; write_shipped_table()"``.
+SHIPPED_TABLE = Path(__file__).resolve().parent / "data" / "key_table_default.npz"
+
+
+def _table_digest(model) -> str:
+    """sha256 of the model's :func:`_model_key` and the table grid."""
+    h = hashlib.sha256(repr((_TAB_C, _TAB_R, _model_key(model)[:2])).encode())
+    for b in _model_key(model)[2]:
+        h.update(b)
+    return h.hexdigest()
+
+
+def _shipped_table(model):
+    """The shipped table if it was built for ``model`` and this grid, else None."""
+    if not SHIPPED_TABLE.is_file():
+        return None
+    with np.load(SHIPPED_TABLE) as z:
+        if str(z["digest"]) != _table_digest(model):
+            return None
+        return np.ascontiguousarray(z["table"], np.float32)
+
+
+def write_shipped_table(path=SHIPPED_TABLE):
+    """Build the key table of :func:`default_model` and write it (atomically) to ``path``."""
+    import io
+
+    from pmetric import atomic_write_bytes
+
+    model = default_model()
+    buf = io.BytesIO()
+    np.savez_compressed(buf, table=_perceptual_table(model), digest=np.asarray(_table_digest(model)))
+    return atomic_write_bytes(path, buf.getvalue())
+
+
 def _build_table(model) -> _KeyTable:
-    host = _perceptual_table(model)
+    host = _shipped_table(model)
+    if host is None:
+        host = _perceptual_table(model)
     host.flags.writeable = False
     return _KeyTable(jnp.asarray(host), host, _model_band(model))
 
@@ -340,11 +387,11 @@ class NodeTerms(NamedTuple):
 
 
 def default_model():
-    """The perceptual model used when none is given: Kelly's abstract CSF [LHNW00] with its defaults
-    (peak sensitivity 200 at 4 cycles/deg)."""
+    """The perceptual model used when none is given: :func:`pmetric.default_model` (stelaCSF with its
+    published constants [MAC22]; see :data:`pmetric.DEFAULT_MODEL` for why)."""
     import pmetric
 
-    return pmetric.KellyAbstract()
+    return pmetric.default_model()
 
 
 def node_terms(tree, view) -> NodeTerms:
@@ -392,3 +439,4 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
         model = None
     raw, culled = _raw_keys(ctx, vp, model, ktab, metric, view.gaze_px is not None, view.previous is not None)
     return _propagate(ctx, raw, culled)
+

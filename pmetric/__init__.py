@@ -9,7 +9,7 @@ Units throughout: spatial frequency ``f`` in cycles/deg, eccentricity ``e`` in d
 retinal velocity ``v`` in deg/s, Michelson contrast ``c`` in [0, 1], luminance in cd/m2.
 
 Models by name: ``make_model("stela")``, ``make_model("eccentric(manossakrison)")``,
-``make_model("fitted.json")``; ``default_model()`` is :data:`DEFAULT_MODEL` (Kelly's abstract CSF). Names
+``make_model("fitted.json")``; ``default_model()`` is :data:`DEFAULT_MODEL` (stelaCSF, published constants). Names
 are case-insensitive; ``model_entries()`` (and ``plod models``) list them with inputs and constants.
 """
 

@@ -34,8 +34,12 @@ from ._errors import PlodError
 __all__ = ["DEFAULT_MODEL", "ModelEntry", "default_model", "make_model", "model_entries", "model_registry",
            "register_model"]
 
-DEFAULT_MODEL = "kellyabstract"
-"""The model used when none is given: Kelly's abstract CSF [LHNW00 Eq 1-2] with its default constants."""
+DEFAULT_MODEL = "stela"
+"""The model used when none is given: stelaCSF [MAC22] with its published constants. Of plod's models it
+has the least error on thresholds no fit saw in the periphery, where gaze-directed LOD relies on it
+(``reports/fit_real/report.md``: 6.90 dB on anderson1991, 8-55 deg), and under the image judge its cuts
+beat those of Kelly's abstract CSF [LHNW00], the seeds' model and plod's default before
+(``reports/accuracy/default_model.md``). The seeds' reproductions name ``kellyabstract`` explicitly."""
 
 # Extra spellings of the class names (compared after :func:`_key`).
 _ALIASES: dict[str, tuple[str, ...]] = {
@@ -250,5 +254,5 @@ def make_model(spec=None):
 
 
 def default_model():
-    """:data:`DEFAULT_MODEL` with its default constants (peak sensitivity 200 at 4 cycles/deg)."""
+    """:data:`DEFAULT_MODEL` with its default constants (stelaCSF's published fit [MAC22])."""
     return make_model(DEFAULT_MODEL)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -32,10 +33,12 @@ def test_every_spelling_gives_the_same_class(cls, spellings):
 
 
 def test_default_model_is_one_name():
-    assert pmetric.DEFAULT_MODEL == "kellyabstract"
+    assert pmetric.DEFAULT_MODEL == "stela"
     for m in (pmetric.default_model(), optim.default_model(), make_model(None), make_model("default")):
-        assert type(m) is pmetric.KellyAbstract
-    assert float(pmetric.default_model().f0) == 4.0
+        assert type(m) is pmetric.StelaCSF
+    # the published constants [MAC22] (not a refit)
+    for a, b in zip(jax.tree_util.tree_leaves(pmetric.default_model()), jax.tree_util.tree_leaves(pmetric.StelaCSF())):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     inst = pmetric.ManosSakrison(peak_sensitivity=123.0)
     assert make_model(inst) is inst  # an instance comes back as is
 
@@ -116,7 +119,8 @@ def test_plod_models_json(capsys):
         r = rows[name]
         assert r["kind"] == "csf" and isinstance(r["inputs"], list) and "f" in r["inputs"], name
         assert r["constants"] is None or all(isinstance(k, str) for k in r["constants"]), name
-    assert rows["KellyAbstract"]["default"] and rows["KellyAbstract"]["constants"]["f0"] == 4.0
+    assert rows["StelaCSF"]["default"] and not rows["KellyAbstract"]["default"]
+    assert rows["KellyAbstract"]["constants"]["f0"] == 4.0
     assert rows["StelaCSF"]["inputs"] == list(pmetric.StelaCSF.inputs)
     assert {"f", "e", "v", "luminance", "area"} <= set(rows["StelaCSF"]["inputs"])
     assert main(["models"]) == 0

@@ -106,7 +106,8 @@ def _mesh_values(out: dict) -> None:
                 keys = out[f"{base}/{vname}/perceptual/kellyabstract"]
                 budget = max(4, tree.n_triangles // 5)
                 _cut_record(out, f"{base}/{vname}/budget", tree, optim.budget_cut(tree, keys, budget))
-                _cut_record(out, f"{base}/{vname}/imperceptible", tree, optim.imperceptible_cut(tree, view))
+                # the default model was KellyAbstract when these were pinned (stelaCSF since issue 14)
+                _cut_record(out, f"{base}/{vname}/imperceptible", tree, optim.imperceptible_cut(tree, view, models["kellyabstract"]))
             t = optim.node_terms(tree, _views(v)["side"])
             for field in t._fields:
                 out[f"{base}/side/terms/{field}"] = np.asarray(getattr(t, field))

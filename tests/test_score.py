@@ -359,3 +359,21 @@ def test_silhouette_choice_is_one_function():
     assert np.array_equal(select_contrast(sil, own, other, np), [10.0, 2.0, 30.0])
     assert np.array_equal(np.asarray(select_contrast(jnp.asarray(sil), jnp.asarray(own), jnp.asarray(other))),
                           [10.0, 2.0, 30.0])
+
+
+def test_shipped_key_table_is_the_default_models_fresh_table(tmp_path):
+    """The key table shipped for the default model (stelaCSF's takes about 10 s to build) is what a
+    fresh build gives, is used only for that model and grid, and is rewritten atomically."""
+    from optim import _score as S
+
+    model = S.default_model()
+    shipped = S._shipped_table(model)
+    assert shipped is not None, "optim/data/key_table_default.npz is missing or not the default model's"
+    fresh = S._perceptual_table(model)
+    np.testing.assert_allclose(shipped, fresh, rtol=1e-5)  # XLA:CPU float32 of another vector width
+    assert S._shipped_table(pmetric.StelaCSF(sust_bw=0.0003)) is None  # other constants: built afresh
+    assert S._shipped_table(pmetric.KellyAbstract()) is None
+    out = S.write_shipped_table(tmp_path / "t.npz")
+    with np.load(out) as z:
+        np.testing.assert_allclose(z["table"], fresh, rtol=1e-5)
+        assert str(z["digest"]) == S._table_digest(model)
