@@ -1,8 +1,8 @@
 """Issue 14: should plod's default CSF model be ``stela`` (published stelaCSF constants) instead of
 ``kellyabstract``? The accuracy sweep's cells (experiments/accuracy.py: same meshes, views, gazes,
 lightings and config DEFAULTS) judged again with the imperceptible cut and the perceptual budget cuts
-scored by ``pmetric.make_model(MODEL)``; compared with the default model's rows of
-reports/accuracy/results.jsonl.
+scored by ``pmetric.make_model(MODEL)``; compared with the rows of reports/accuracy/results.jsonl as of git c0cfd96, the sweep made when
+``kellyabstract`` was the default (read with ``git show``; the default is ``stela`` since).
 
     OMP_NUM_THREADS=1 taskset -c 0 .venv/bin/python reports/accuracy/scripts/default_model.py [--resume]
         [--model stela] [--lightings relit,baked] [--report-only]
@@ -10,8 +10,8 @@ reports/accuracy/results.jsonl.
 Writes reports/accuracy/default_model.jsonl (one line per judged cut, appended as it goes; ``--resume``
 skips the (cell, method, budget) already there) and reports/accuracy/default_model.md (tables from
 both files). Relit cells are run first (all meshes), then baked. Every row also carries
-``default_triangles``: the triangles of the same cut with the default model under today's code (a check
-that the cells are the ones of results.jsonl).
+``default_triangles``: the triangles of the same cut with ``kellyabstract`` under today's code (a check
+that the cells are the ones of that results.jsonl).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from experiments.accuracy import (DEFAULTS, IMPERCEPTIBLE_TARGET, PEERS, _cell_i
 
 OUT = ROOT / "reports" / "accuracy"
 BASE = OUT / "results.jsonl"
+BASE_REV = "c0cfd96"  # results.jsonl of the sweep with kellyabstract as the default
 ROWS = OUT / "default_model.jsonl"
 REPORT = OUT / "default_model.md"
 BEST_PEERS = ("size", "geometric") + PEERS  # the harness's "perceptual best" comparison set
@@ -61,7 +62,9 @@ def judge_cell(mesh, d, g, lighting, cfg, model, todo, write):
     size = tuple(cfg["size"])
     ref = mesh.original(lighting)
     T = tree.n_triangles
-    dkeys = optim.score(tree, view)  # the default model: the check against results.jsonl
+    import pmetric
+
+    dkeys = optim.score(tree, view, pmetric.KellyAbstract())  # the old default: the check against results.jsonl
 
     def judged(method, budget, result, ms, default_tri, **extra):
         res = judge(ref, result, view, mode=lighting, lighting=light, size=size, heatmap=False)
@@ -152,18 +155,23 @@ def _pct(num, den):
 
 
 def report(cfg, model_name, command, seconds=None):
-    base = [r for r in _load(BASE) if r.get("jod") is not None]
+    import subprocess
+
+    text = subprocess.run(["git", "-C", str(ROOT), "show", f"{BASE_REV}:reports/accuracy/results.jsonl"],
+                          capture_output=True, text=True, check=True).stdout
+    base = [json.loads(x) for x in text.splitlines() if x.strip()]
+    base = [r for r in base if r.get("jod") is not None]
     new = [r for r in _load(ROWS) if r.get("jod") is not None and r.get("model", model_name) == model_name]
     errors = [r for r in _load(ROWS) if r["method"] == "error"]
     B = {(r["cell"], r["method"], r["budget"]): r for r in base}
     N = {(r["cell"], r["method"], r["budget"]): r for r in new}
-    L = [f"# Default CSF model: `kellyabstract` (today) vs `{model_name}` (published stelaCSF constants)\n",
+    L = [f"# Default CSF model: `kellyabstract` (the default before issue 14) vs `{model_name}` (published stelaCSF constants, the default since)\n",
          f"Command: `{command}`\n",
          "Cells: those of the accuracy sweep (`experiments/accuracy.py` DEFAULTS: 4 scanned meshes + 2 procedural, "
          f"1 view each (seed {cfg['seed']}), gaze offsets {', '.join(f'{g:g}' for g in cfg['gaze_offsets_deg'])} deg, "
          f"gaze error {cfg['gaze_error_deg']:g} deg, relit and baked, {cfg['size'][0]}x{cfg['size'][1]} px), rebuilt with "
          "the harness's own `load_meshes`, `_Mesh`, `_cells`, `_view` and judged with the same `judge` call. "
-         f"`kellyabstract` rows: reports/accuracy/results.jsonl; `{model_name}` rows: reports/accuracy/default_model.jsonl "
+         f"`kellyabstract` rows: reports/accuracy/results.jsonl at git {BASE_REV}; `{model_name}` rows: reports/accuracy/default_model.jsonl "
          f"(`optim.score(tree, view, pmetric.make_model('{model_name}'))`). Only cells present in both files are compared.\n"]
     # the check that the cells are the same: default-model triangles now vs results.jsonl
     chk = [(r, B.get((r["cell"], r["method"], r["budget"]))) for r in new]
