@@ -157,13 +157,20 @@ def _table_digest(model) -> str:
 
 
 def _shipped_table(model):
-    """The shipped table if it was built for ``model`` and this grid, else None."""
-    if not SHIPPED_TABLE.is_file():
+    """The shipped table if it was built for ``model`` and this grid, else None (also for a missing or
+    unreadable file, or one of the wrong size: the table is then built afresh)."""
+    import io
+    import zipfile
+
+    try:  # read the bytes first: np.load leaves a damaged file open
+        with np.load(io.BytesIO(SHIPPED_TABLE.read_bytes())) as z:
+            if str(z["digest"]) != _table_digest(model):
+                return None
+            table = np.ascontiguousarray(z["table"], np.float32)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    with np.load(SHIPPED_TABLE) as z:
-        if str(z["digest"]) != _table_digest(model):
-            return None
-        return np.ascontiguousarray(z["table"], np.float32)
+    n = _TAB_C[2] * _TAB_R[2]
+    return table if table.shape == (n,) and np.isfinite(table).all() else None
 
 
 def write_shipped_table(path=SHIPPED_TABLE):

@@ -377,3 +377,24 @@ def test_shipped_key_table_is_the_default_models_fresh_table(tmp_path):
     with np.load(out) as z:
         np.testing.assert_allclose(z["table"], fresh, rtol=1e-5)
         assert str(z["digest"]) == S._table_digest(model)
+
+
+def test_damaged_shipped_table_is_rebuilt_not_trusted(tmp_path, monkeypatch):
+    """A truncated, foreign or wrong-sized shipped table file is ignored (the table is built afresh),
+    never read as keys."""
+    from optim import _score as S
+
+    model = S.default_model()
+    good = S.SHIPPED_TABLE.read_bytes()
+    for name, data in (("truncated", good[: len(good) // 2]), ("not a zip", b"plod"), ("empty", b"")):
+        bad = tmp_path / f"{name}.npz"
+        bad.write_bytes(data)
+        monkeypatch.setattr(S, "SHIPPED_TABLE", bad)
+        assert S._shipped_table(model) is None, name
+    short = tmp_path / "short.npz"
+    np.savez(short, table=np.ones(7, np.float32), digest=np.asarray(S._table_digest(model)))
+    monkeypatch.setattr(S, "SHIPPED_TABLE", short)
+    assert S._shipped_table(model) is None
+    monkeypatch.setattr(S, "SHIPPED_TABLE", tmp_path / "missing.npz")
+    assert S._shipped_table(model) is None
+
