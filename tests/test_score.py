@@ -361,6 +361,7 @@ def test_silhouette_choice_is_one_function():
                           [10.0, 2.0, 30.0])
 
 
+@pytest.mark.slow  # a fresh stelaCSF table: 10-30 s of compilation and solves
 def test_shipped_key_table_is_the_default_models_fresh_table(tmp_path):
     """The key table shipped for the default model (stelaCSF's takes about 10 s to build) is what a
     fresh build gives, is used only for that model and grid, and is rewritten atomically."""
