@@ -435,7 +435,7 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
         ok = cand & (hf.err[l] > criteria.tol)
         if criteria.cull:
             # 0 unknown, 1 visible, 2 culled, 3 contained (its box, and every descendant's, in view)
-            cmap = np.zeros((1, 1), np.int8) if l == 0 else np.where(_up(culled[l - 1] == 3), np.int8(3), np.int8(0))
+            cmap = np.zeros((1, 1), np.int8) if l == 0 else _inherit(culled[l - 1])
             t = np.flatnonzero(ok & (cmap != 3))
             if len(t):
                 c, inside = _culled(hf, camera, R, l, t // m, t % m, inside=True)
@@ -450,6 +450,12 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
         cand = _up(ok)
     _restrict(split)
     return _leaves(hf, camera, R, criteria, split, culled)
+
+
+def _inherit(parent_state):
+    """The next level's cull map from the level's (0 unknown, 1 visible, 2 culled, 3 contained): 3 under a
+    contained parent (its box, and every descendant's, is in view), else 0."""
+    return np.where(_up(parent_state == 3), np.int8(3), np.int8(0))
 
 
 def _up(M):
@@ -497,9 +503,9 @@ def _leaves(hf, camera, R, criteria, split, culled):
         if l < L:
             leaf &= ~split[l]
         if criteria.cull:
-            known = culled[l] if culled[l] is not None else np.zeros((m, m), np.int8)
-            if l:
-                known = np.where((known == 0) & _up(culled[l - 1] == 3), np.int8(3), known)
+            # levels < L: the refinement's map (already 3 under every contained parent); the finest
+            # level was never tested: inherited from its parents
+            known = culled[l] if culled[l] is not None else _inherit(culled[l - 1])
             leaf &= known != 2
             t = np.flatnonzero(leaf & (known == 0))
             if len(t):
