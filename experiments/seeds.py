@@ -44,6 +44,7 @@ def seed_model():
 
     return pmetric.KellyAbstract()
 
+
 REGIONS = ("silhouette", "interior", "low contrast", "hidden")
 SECTIONS = ("fig9", "fig8", "distance", "arch")
 

@@ -150,8 +150,9 @@ SHIPPED_TABLE = Path(__file__).resolve().parent / "data" / "key_table_default.np
 
 def _table_digest(model) -> str:
     """sha256 of the model's :func:`_model_key` and the table grid."""
-    h = hashlib.sha256(repr((_TAB_C, _TAB_R, _model_key(model)[:2])).encode())
-    for b in _model_key(model)[2]:
+    name, structure, constants = _model_key(model)
+    h = hashlib.sha256(repr((_TAB_C, _TAB_R, (name, structure))).encode())
+    for b in constants:
         h.update(b)
     return h.hexdigest()
 
@@ -450,4 +451,3 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
         model = None
     raw, culled = _raw_keys(ctx, vp, model, ktab, metric, view.gaze_px is not None, view.previous is not None)
     return _propagate(ctx, raw, culled)
-
