@@ -23,7 +23,7 @@ from ._flips import Flips, cut_flips
 from ._view import View
 from ._context import ScoringContext, scoring_context
 from ._relight import cull_columns, normal_cones, relit_columns, slab_half_width
-from ._score import NodeTerms, node_terms, score, default_model
+from ._score import NodeTerms, node_terms, score, default_model, prepare_motion_table
 from ._points import (PointHierarchy, PointTerms, Traversal, build_points, load_points, point_terms, points_from_mesh,
                       save_points, splat_discs, traverse, walk)
 from ._terrain import (Heightfield, TerrainCamera, TerrainCriteria, TerrainLOD, crop_heightfield, fractal_heightfield,

@@ -48,7 +48,7 @@ from ._normal_cube import table_device
 from ._terms import (band_width, contrast_pair, classify, extent, eccentricity, facing_flags, facing_host,
                      facing_rows, frustum_culled, cone_facing, terms, terms_jit, view_params, Terms, _geometry)
 
-__all__ = ["score", "node_terms", "NodeTerms", "default_model", "METRICS"]
+__all__ = ["score", "node_terms", "NodeTerms", "default_model", "prepare_motion_table", "METRICS"]
 
 METRICS = ("perceptual", "size", "geometric")
 
@@ -75,6 +75,57 @@ def _perceptual_table(model) -> np.ndarray:
     k = np.maximum.accumulate(k, axis=0)  # non-decreasing in contrast
     k[:, :-1] = np.maximum(k[:, :-1], k[:, 1:])  # cell [r_i, r_i+1): upper end of a monotone pair
     return k.astype(np.float32).ravel()
+
+
+#: velocity-to-size ratio grid (v / theta, deg/s per deg): 0, then log10 from -2 to 5; sub-samples per
+#: cell of the motion table (its entries are the largest key over each cell's ends and sub-samples)
+_TAB_W = (-2.0, 5.0, 48)
+_W_SUB = 3
+_BUILD_BATCH = 1 << 16
+
+
+def _motion_table(model) -> np.ndarray:
+    """K[j, i, l] = model.imperceptible_distance(c_j, 1 deg, r_i deg, w deg/s) over the velocity cell
+    ``w`` in [w_l, w_l+1] (the key of a moving fold: ``k(c, theta, e, v) = theta K(c, e / theta,
+    v / theta)``, since seen k times farther away a change has e / k and v / k [LH01 §5.3]), made
+    conservative: the largest value over the cell's two ends and ``_W_SUB`` log-spaced points between
+    them (the key is not monotone in velocity: a band-pass temporal response), then non-decreasing
+    in c and, over each r cell, the larger of its two ends, as in :func:`_perceptual_table`. The last
+    cell is its lower end (ratios above 10^5 deg/s per deg use 10^5: nothing moves that fast and
+    stays visible). Flat (Nc * Nr * Nw,) float32.
+
+    The model is closed over (its constants are compile-time constants), so models with a fast
+    direct solve for concrete constants use it (stelaCSF: about 1 us per entry instead of 180 us;
+    its compilation is about 30 s on one core, once per process)."""
+    lc0, lc1, nc = _TAB_C
+    lr0, lr1, nr = _TAB_R
+    lw0, lw1, nw = _TAB_W
+    c = np.logspace(lc0, lc1, nc)
+    rr = np.concatenate([[0.0], np.logspace(lr0, lr1, nr - 1)])
+    ends = np.concatenate([[0.0], np.logspace(lw0, lw1, nw - 1)])
+    sub = [ends[:1]]
+    for l in range(nw - 1):
+        a, b = ends[l], ends[l + 1]
+        inner = np.linspace(a, b, _W_SUB + 2)[1:] if a == 0 else np.geomspace(a, b, _W_SUB + 2)[1:]
+        sub.append(inner)
+    ws = np.concatenate(sub)  # ends[l] = ws[l * (_W_SUB + 1)]
+    cg, rg, wg = (x.astype(np.float32).ravel() for x in np.meshgrid(c, rr, ws, indexing="ij"))
+    fn = jax.jit(lambda a, r, w: model.imperceptible_distance(a, jnp.ones_like(a), r, w))
+    n = len(cg)
+    k = np.empty(n, np.float64)
+    for s in range(0, n, _BUILD_BATCH):
+        m = min(_BUILD_BATCH, n - s)
+        pad = lambda x: np.pad(x[s:s + m], (0, _BUILD_BATCH - m), constant_values=1.0)  # noqa: E731
+        k[s:s + m] = np.asarray(fn(pad(cg), pad(rg), pad(wg)), np.float64)[:m]
+    k = np.where(np.isfinite(k), k, 1e30).reshape(nc, nr, len(ws))
+    step = _W_SUB + 1
+    cells = np.empty((nc, nr, nw))
+    for l in range(nw - 1):
+        cells[:, :, l] = k[:, :, l * step:(l + 1) * step + 1].max(-1)
+    cells[:, :, nw - 1] = k[:, :, -1]
+    cells = np.maximum.accumulate(cells, axis=0)  # non-decreasing in contrast
+    cells[:, :-1] = np.maximum(cells[:, :-1], cells[:, 1:])  # r cell: the larger of its ends
+    return cells.astype(np.float32).ravel()
 
 
 class _KeyTable(NamedTuple):
@@ -148,41 +199,67 @@ def _per_model(cache: dict, model, build):
 SHIPPED_TABLE = Path(__file__).resolve().parent / "data" / "key_table_default.npz"
 
 
-def _table_digest(model) -> str:
-    """sha256 of the model's :func:`_model_key` and the table grid."""
+#: The motion key table of :func:`default_model` (:func:`_motion_table`), shipped because stelaCSF's
+#: takes about 5 minutes to build on one core (entries far outside its fast solver's table fall back
+#: to the generic scan); float16 rounded up (conservative: 0.1 % coarser than the float32 table).
+SHIPPED_MOTION_TABLE = Path(__file__).resolve().parent / "data" / "motion_table_default.npz"
+
+
+def _table_digest(model, motion: bool = False) -> str:
+    """sha256 of the model's :func:`_model_key` and the table grid (with ``motion``, the motion grid)."""
     name, structure, constants = _model_key(model)
-    h = hashlib.sha256(repr((_TAB_C, _TAB_R, (name, structure))).encode())
+    grid = (_TAB_C, _TAB_R) + ((_TAB_W, _W_SUB, "float16-up") if motion else ())
+    h = hashlib.sha256(repr(grid + ((name, structure),)).encode())
     for b in constants:
         h.update(b)
     return h.hexdigest()
 
 
-def _shipped_table(model):
-    """The shipped table if it was built for ``model`` and this grid, else None (also for a missing or
-    unreadable file, or one of the wrong size: the table is then built afresh)."""
+def _shipped_table(model, motion: bool = False):
+    """The shipped (static or motion) table if it was built for ``model`` and this grid, else None
+    (also for a missing or unreadable file, or one of the wrong size: the table is then built afresh,
+    or for motion the exact per-node key is used)."""
     import io
     import zipfile
 
+    path = SHIPPED_MOTION_TABLE if motion else SHIPPED_TABLE
     try:  # read the bytes first: np.load leaves a damaged file open
-        with np.load(io.BytesIO(SHIPPED_TABLE.read_bytes())) as z:
-            if str(z["digest"]) != _table_digest(model):
+        with np.load(io.BytesIO(path.read_bytes())) as z:
+            if str(z["digest"]) != _table_digest(model, motion):
                 return None
             table = np.ascontiguousarray(z["table"], np.float32)
+            if motion:
+                table[np.isposinf(table)] = 1e30
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    n = _TAB_C[2] * _TAB_R[2]
+    n = _TAB_C[2] * _TAB_R[2] * (_TAB_W[2] if motion else 1)
     return table if table.shape == (n,) and np.isfinite(table).all() else None
 
 
-def write_shipped_table(path=SHIPPED_TABLE):
-    """Build the key table of :func:`default_model` and write it (atomically) to ``path``."""
+def _round_up_f16(x: np.ndarray) -> np.ndarray:
+    """float16 copy of ``x`` (float32 >= 0) rounded up, never below ``x``; values beyond float16's
+    range (the 1e30 "no finite key" entries) become inf, read back as 1e30."""
+    h = x.astype(np.float16)
+    low = h.astype(np.float32) < x
+    h[low] = np.nextafter(h[low], np.float16(np.inf))
+    return h
+
+
+def write_shipped_table(path=SHIPPED_TABLE, motion: bool = False):
+    """Build the static (or, with ``motion``, the motion) key table of :func:`default_model` and write
+    it (atomically) to ``path`` (default: the shipped file of that kind)."""
     import io
 
     from pmetric import atomic_write_bytes
 
     model = default_model()
+    if motion:
+        path = SHIPPED_MOTION_TABLE if path == SHIPPED_TABLE else path
+        table = _round_up_f16(_motion_table(model))
+    else:
+        table = _perceptual_table(model)
     buf = io.BytesIO()
-    np.savez_compressed(buf, table=_perceptual_table(model), digest=np.asarray(_table_digest(model)))
+    np.savez_compressed(buf, table=table, digest=np.asarray(_table_digest(model, motion)))
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -199,25 +276,79 @@ def _model_table(model) -> _KeyTable:
     return _per_model(_TABLES, model, _build_table)
 
 
+_MOTION_TABLES: dict = {}
+_NO_MOTION_TABLE: set = set()  # model keys without a shipped motion table (not re-read per view)
+
+
+def _build_motion(model) -> _KeyTable:
+    host = _shipped_table(model, motion=True)
+    if host is None:
+        host = _motion_table(model)
+    host.flags.writeable = False
+    return _KeyTable(jnp.asarray(host), host, (0.0, 0.0))
+
+
+def prepare_motion_table(model) -> None:
+    """Build (once per process) the motion key table of ``model``, so that :func:`score` reads the keys
+    of moving views from it instead of calling the model per node. The default model's is shipped;
+    for others the build costs a second (direct-solve models such as KellyAbstract) to about 5
+    minutes (stelaCSF fits) on one core, against about 180 us per node and view on the per-node path
+    for stelaCSF."""
+    import pmetric
+
+    if not isinstance(model, pmetric.CSFModel):
+        raise PlodError(f"prepare_motion_table: model must be a pmetric.CSFModel, got {type(model).__name__}")
+    _NO_MOTION_TABLE.discard(_model_key(model))
+    _per_model(_MOTION_TABLES, model, _build_motion)
+
+
+def _motion_table_for(model):
+    """The motion key table of ``model`` if it is shipped or was prepared (:func:`prepare_motion_table`),
+    else None (the per-node key is used)."""
+    key = _model_key(model)
+    if key not in _MOTION_TABLES:
+        if key in _NO_MOTION_TABLE:
+            return None
+        host = _shipped_table(model, motion=True)
+        if host is None:
+            if len(_NO_MOTION_TABLE) > 16:
+                _NO_MOTION_TABLE.clear()
+            _NO_MOTION_TABLE.add(key)
+            return None
+        host.flags.writeable = False
+        _per_model(_MOTION_TABLES, model, lambda m: _KeyTable(jnp.asarray(host), host, (0.0, 0.0)))
+    return _per_model(_MOTION_TABLES, model, _build_motion)
+
+
 def _model_band(model) -> tuple:
     """:func:`band_constant` of ``model``, cached like the key tables."""
     return _per_model(_BANDS, model, band_constant)
 
 
-def table_index(c, theta, ecc):
+def _ratio_cell(x, theta, grid):
+    """Cell (rounded down) of the ratio ``x / theta`` on a grid ``(log10 lo, log10 hi, n)`` of 0 then
+    n - 1 log-spaced points: 0 below 10^lo, n - 1 at and above 10^hi."""
+    lo, hi, n = grid
+    ratio = div_or_zero(x, theta)
+    small = ratio < 10.0 ** lo
+    lr = jnp.log10(jnp.where(small, 1.0, ratio))
+    return jnp.where(small, 0, 1 + jnp.clip(jnp.floor((lr - lo) * ((n - 2) / (hi - lo))), 0, n - 2)).astype(jnp.int32)
+
+
+def table_index(c, theta, ecc, vel=None):
     """Flat index into the key table of (c rounded up, ecc / theta rounded down), -1 where the key is
-    0 (no contrast or no extent). Computed apart from the gather: fused into it, XLA:CPU computes the
-    indices with scalar code (log10 per element)."""
+    0 (no contrast or no extent); with ``vel`` (deg/s) into the motion table, with the cell of
+    vel / theta. Computed apart from the gather: fused into it, XLA:CPU computes the indices with
+    scalar code (log10 per element)."""
     lc0, lc1, nc = _TAB_C
-    lr0, lr1, nr = _TAB_R
+    nr = _TAB_R[2]
     pos_c = c > 0
     lc = jnp.log10(jnp.where(pos_c, jnp.maximum(c, 10.0 ** lc0), 1.0))
     j = jnp.clip(jnp.ceil((lc - lc0) * ((nc - 1) / (lc1 - lc0)) - 1e-4), 0, nc - 1).astype(jnp.int32)
-    ratio = div_or_zero(ecc, theta)
-    small = ratio < 10.0 ** lr0
-    lr = jnp.log10(jnp.where(small, 1.0, ratio))
-    i = jnp.where(small, 0, 1 + jnp.clip(jnp.floor((lr - lr0) * ((nr - 2) / (lr1 - lr0))), 0, nr - 2)).astype(jnp.int32)
-    return jnp.where(pos_c & (theta > 0), j * nr + i, -1)
+    flat = j * nr + _ratio_cell(ecc, theta, _TAB_R)
+    if vel is not None:
+        flat = flat * _TAB_W[2] + _ratio_cell(vel, theta, _TAB_W)
+    return jnp.where(pos_c & (theta > 0), flat, -1)
 
 
 def table_gather(ktab, idx, theta, xp=jnp):
@@ -243,6 +374,9 @@ def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
     t = terms(ch, vp, facing, has_gaze, has_motion, metric)
     if metric == "perceptual":
         c_a, kc = _thin_parts(t.contrast, t.theta, t.band)
+        if table_mode and has_motion:  # the motion table; the thin-band bound is one at velocity 0
+            idx = lambda c: table_index(c, t.theta, t.ecc, t.vel)  # noqa: E731
+            return t.culled, (idx(t.c_own), idx(t.contrast), t.theta, t.silhouette)
         if table_mode:
             idx = lambda c, th: table_index(c, th, t.ecc)  # noqa: E731
             return t.culled, (idx(t.c_own, t.theta), idx(t.contrast, t.theta), idx(c_a, t.theta),
@@ -282,6 +416,13 @@ def _table_keys_device(ktab, band_m, i_own, i_sil, i_a, i_b, theta, band, kc, si
     g = lambda i, th: table_gather(ktab, i, th)  # noqa: E731
     return thin_band_key(g(i_own, theta), g(i_sil, theta), g(i_a, theta), g(i_b, band), kc * band_m[0],
                          2.0 * theta * band_m[1], sil)
+
+
+@jax.jit
+def _motion_keys_device(ktab, i_own, i_sil, theta, sil):
+    """Motion table mode: the keys of :func:`_exact_key` with motion, read from the motion table."""
+    k_own = table_gather(ktab, i_own, theta)
+    return jnp.where(sil, jnp.maximum(k_own, table_gather(ktab, i_sil, theta)), k_own)
 
 
 @eqx.filter_jit
@@ -336,8 +477,8 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=True):
     (M,), chunk by chunk (all chunks dispatched before any result is read). ``ktab``: the model's
     :class:`_KeyTable` for table mode, else None; ``fast``: table mode through
     :func:`_table_keys_host` (same values as the XLA programs)."""
-    table_mode = metric == "perceptual" and ktab is not None and not has_motion
-    if table_mode and fast:
+    table_mode = metric == "perceptual" and ktab is not None
+    if table_mode and fast and not has_motion:
         return _table_keys_host(ctx, vp, ktab, has_gaze)
     table = table_device()
     band_m = (0.0, 0.0)
@@ -347,7 +488,9 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=True):
     outs = []
     for ch in ctx.chunks:
         culled, inputs = _key_inputs(ch, vp, facing_flags(ch, vp, table), metric, has_gaze, has_motion, table_mode)
-        if table_mode:
+        if table_mode and has_motion:
+            key = _motion_keys_device(ktab.device, *inputs)
+        elif table_mode:
             key = _table_keys_device(ktab.device, band_m, *inputs)
         else:
             key = _exact_key(model, inputs, metric, has_gaze, has_motion, band_m)
@@ -425,8 +568,10 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
     viewing distance; <= 1 = imperceptible now [LH01 §5.3]); ``model`` is a :class:`pmetric.CSFModel`
     (default: :func:`default_model`). Without motion the key is read from a per-model table
     (``k(c, theta, e) = theta K(c, e / theta)`` holds for every model by the definition of the distance
-    key) rounded to the conservative side; ``exact=True`` calls the model per node, and so does a view
-    with motion (``view.previous``). Cost of that per-node call: KellyAbstract's distance is a direct
+    key) rounded to the conservative side; a view with motion (``view.previous``) reads the motion
+    table ``theta K(c, e / theta, v / theta)`` (:func:`_motion_table`) when the model has one (shipped
+    for the default model; :func:`prepare_motion_table` for others), else calls the model per node, as
+    ``exact=True`` always does. Cost of that per-node call: KellyAbstract's distance is a direct
     solve (milliseconds per 10^5 nodes); the default stelaCSF's is iterative, about 180 us per node on
     one core (11 s for 77,000 nodes, plus about 5 s of compilation per padded chunk shape): for moving
     views of large meshes pass a model with a direct solve (``pmetric.KellyAbstract()``).
@@ -445,8 +590,8 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
         model = default_model() if model is None else model
         if not isinstance(model, pmetric.CSFModel):
             raise PlodError(f"score: model must be a pmetric.CSFModel, got {type(model).__name__}")
-        if not exact and view.previous is None:
-            ktab = _model_table(model)
+        if not exact:
+            ktab = _model_table(model) if view.previous is None else _motion_table_for(model)
     else:
         model = None
     raw, culled = _raw_keys(ctx, vp, model, ktab, metric, view.gaze_px is not None, view.previous is not None)

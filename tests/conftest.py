@@ -83,6 +83,18 @@ SLOW_TESTS = frozenset({
                    "StelaCSF")),
     "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-StelaCSF]",
     "tests/test_nan.py::test_nan_in_nan_out_under_jit[False-KellySpatioTemporal]",
+    # 2026-12-03: the next heaviest (20-46 s each under -n 2); each check keeps a sibling in the fast tier
+    # (another model, dtype or solver path); the same KellySpatioTemporal checks of reddy_st and kelly1979
+    # both run in the slow tier only
+    "tests/test_csf.py::test_jit_vmap_match_eager[reddy_st]",
+    "tests/test_csf.py::test_finite_values_and_gradients_on_dense_grid[reddy_st-float32]",
+    "tests/test_csf.py::test_finite_values_and_gradients_on_dense_grid[reddy_st-float64]",
+    "tests/test_inverse.py::test_float32_input_with_python_scalars_under_x64[reddy_st]",
+    "tests/test_inverse.py::test_theta_zero_and_zero_contrast_give_zero",
+    "tests/test_stela.py::test_fast_distance_definition_and_generic_solver[False]",
+    "tests/test_stela.py::test_fast_distance_shared_definition_check",
+    "tests/test_table.py::test_exact_distance_vs_brute_force_fixed_tables",
+    "tests/test_kelly.py::test_direct_solve_meets_definition[kelly1979]",
     # issue 13 fuzz cases: eight subprocess runs of plod with Ctrl-C; two more extreme scales
     "tests/test_fuzz.py::test_ctrl_c_at_many_moments_exits_130_and_writes_nothing",
     "tests/test_fuzz.py::test_cli_extreme_scales_work[1e+30]",

@@ -399,3 +399,92 @@ def test_damaged_shipped_table_is_rebuilt_not_trusted(tmp_path, monkeypatch):
     monkeypatch.setattr(S, "SHIPPED_TABLE", tmp_path / "missing.npz")
     assert S._shipped_table(model) is None
 
+
+
+def _random_moving_terms(n, seed):
+    rng = np.random.default_rng(seed)
+    c = 10 ** rng.uniform(-3, 0, n)
+    th = 10 ** rng.uniform(-3, 0.5, n)
+    e = rng.uniform(0, 30, n) * (rng.random(n) < 0.8)
+    v = 10 ** rng.uniform(-1, 2.7, n) * (rng.random(n) < 0.9)
+    return c, th, e, v
+
+
+def _motion_table_keys(S, host, c, th, e, v):
+    import jax.numpy as jnp
+
+    idx = np.asarray(S.table_index(*(jnp.asarray(x, jnp.float32) for x in (c, th, e, v))))
+    return np.asarray(S.table_gather(host, idx, th.astype(np.float32), np), np.float64)
+
+
+def _exact_keys(model, c, th, e, v):
+    import jax
+    import jax.numpy as jnp
+
+    f = jax.jit(lambda m, *a: m.imperceptible_distance(*a))
+    return np.asarray(f(model, *(jnp.asarray(x, jnp.float32) for x in (c, th, e, v))), np.float64)
+
+
+@pytest.fixture(scope="module")
+def moving_model():
+    """A model with eccentricity and velocity inputs and a direct solve, its motion table prepared
+    (about 12 s on one core)."""
+    model = pmetric.Eccentric(pmetric.KellySpatioTemporal())
+    optim.prepare_motion_table(model)
+    return model
+
+
+def test_motion_table_bounds_the_moving_key(moving_model):
+    """k(c, theta, e, v) = theta K(c, e / theta, v / theta): the motion table read at random moving
+    folds is never below the model's key, and close to it at the median."""
+    from optim import _score as S
+
+    model = moving_model
+    host = S._motion_table_for(model).host
+    c, th, e, v = _random_moving_terms(4096, 3)
+    exact = _exact_keys(model, c, th, e, v)
+    table = _motion_table_keys(S, host, c, th, e, v)
+    assert (table >= exact * (1 - 1e-4) - 1e-6).all()
+    pos = exact > 1e-3
+    assert pos.sum() > 1000
+    assert np.median(table[pos] / exact[pos]) < 1.05
+    # velocity matters: the same folds at rest read other entries, with other keys
+    rest = _motion_table_keys(S, host, c, th, e, np.zeros_like(v))
+    assert np.mean(np.abs(rest - table) > 1e-3 * table) > 0.3
+
+
+def test_shipped_motion_table_bounds_the_default_models_key():
+    """The shipped motion table of the default model (stelaCSF: minutes to build) is the default
+    model's, and is never below the model's key at random moving folds (checked against the model's
+    own per-element solve)."""
+    from optim import _score as S
+
+    model = S.default_model()
+    host = S._shipped_table(model, motion=True)
+    assert host is not None, "optim/data/motion_table_default.npz is missing or not the default model's"
+    assert S._shipped_table(pmetric.KellyAbstract(), motion=True) is None
+    c, th, e, v = _random_moving_terms(256, 4)
+    exact = _exact_keys(model, c, th, e, v)
+    table = _motion_table_keys(S, host, c, th, e, v)
+    assert (table >= exact * (1 - 1e-4) - 1e-6).all()
+    pos = exact > 1e-3
+    assert np.median(table[pos] / exact[pos]) < 1.1
+
+
+def test_moving_view_keys_come_from_the_motion_table(sphere_tree, moving_model):
+    """A moving view scores from the motion table when the model has one (shipped or prepared): keys
+    at least the per-node keys and close to them; a model without one uses the per-node key."""
+    tree = sphere_tree
+    a = View(eye=EYE, gaze=[[800.0, 500.0]])
+    b = View(eye=(0.3, 0.1, 4.0), target=(0, 0, 0), gaze=[[800.0, 500.0]], previous=a, dt_s=0.02)
+    other = pmetric.KellyAbstract(f0=3.0)  # not prepared, not shipped: the per-node key
+    assert np.array_equal(score(tree, b, other), score(tree, b, other, exact=True))
+    exact = score(tree, b, moving_model, exact=True)
+    table = score(tree, b, moving_model)
+    _check_monotone(tree, table)
+    assert (table >= exact * (1 - 1e-5) - 1e-6).all()
+    big = exact > 0.1
+    assert big.sum() > 20 and not np.array_equal(table, exact)
+    assert np.median(table[big] / exact[big]) < 1.1
+    with pytest.raises(pmetric.PlodError, match="CSFModel"):
+        optim.prepare_motion_table("stela")
