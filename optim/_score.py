@@ -245,7 +245,7 @@ def _round_up_f16(x: np.ndarray) -> np.ndarray:
     return h
 
 
-def write_shipped_table(path=SHIPPED_TABLE, motion: bool = False):
+def write_shipped_table(path=None, motion: bool = False):
     """Build the static (or, with ``motion``, the motion) key table of :func:`default_model` and write
     it (atomically) to ``path`` (default: the shipped file of that kind)."""
     import io
@@ -253,8 +253,9 @@ def write_shipped_table(path=SHIPPED_TABLE, motion: bool = False):
     from pmetric import atomic_write_bytes
 
     model = default_model()
+    if path is None:
+        path = SHIPPED_MOTION_TABLE if motion else SHIPPED_TABLE
     if motion:
-        path = SHIPPED_MOTION_TABLE if path == SHIPPED_TABLE else path
         table = _round_up_f16(_motion_table(model))
     else:
         table = _perceptual_table(model)
@@ -280,12 +281,14 @@ _MOTION_TABLES: dict = {}
 _NO_MOTION_TABLE: set = set()  # model keys without a shipped motion table (not re-read per view)
 
 
-def _build_motion(model) -> _KeyTable:
-    host = _shipped_table(model, motion=True)
-    if host is None:
-        host = _motion_table(model)
+def _motion_key_table(host: np.ndarray) -> _KeyTable:
     host.flags.writeable = False
     return _KeyTable(jnp.asarray(host), host, (0.0, 0.0))
+
+
+def _build_motion(model) -> _KeyTable:
+    host = _shipped_table(model, motion=True)
+    return _motion_key_table(_motion_table(model) if host is None else host)
 
 
 def prepare_motion_table(model) -> None:
@@ -306,18 +309,17 @@ def _motion_table_for(model):
     """The motion key table of ``model`` if it is shipped or was prepared (:func:`prepare_motion_table`),
     else None (the per-node key is used)."""
     key = _model_key(model)
-    if key not in _MOTION_TABLES:
-        if key in _NO_MOTION_TABLE:
-            return None
-        host = _shipped_table(model, motion=True)
-        if host is None:
-            if len(_NO_MOTION_TABLE) > 16:
-                _NO_MOTION_TABLE.clear()
-            _NO_MOTION_TABLE.add(key)
-            return None
-        host.flags.writeable = False
-        _per_model(_MOTION_TABLES, model, lambda m: _KeyTable(jnp.asarray(host), host, (0.0, 0.0)))
-    return _per_model(_MOTION_TABLES, model, _build_motion)
+    if key in _MOTION_TABLES:
+        return _MOTION_TABLES[key]
+    if key in _NO_MOTION_TABLE:
+        return None
+    host = _shipped_table(model, motion=True)
+    if host is None:
+        if len(_NO_MOTION_TABLE) > 16:
+            _NO_MOTION_TABLE.clear()
+        _NO_MOTION_TABLE.add(key)
+        return None
+    return _per_model(_MOTION_TABLES, model, lambda m: _motion_key_table(host))
 
 
 def _model_band(model) -> tuple:
