@@ -47,10 +47,13 @@ class Levels:
     ``groups[k]`` for level k >= 1 (``groups[0]`` is None): ``(a, b, seg, pids)``: the level is
     ``a:b``, its child groups start at ``a + seg`` and belong to the parents at positions ``pids``.
 
-    ``max_arity > 0`` also builds, for levels whose groups have at most that many children, the
-    fixed-arity form used by :meth:`max_up`: per level the parents' positions and (A, P) child
-    positions, short groups padded with their first child (max is idempotent). ``np.maximum.reduceat``
-    pays a per-group overhead that dominates on binary trees; one gather per child slot does not.
+    ``max_arity > 0`` also builds the slot form used by :meth:`max_up` (:meth:`_slots`): per level the
+    parents' positions, one gather per child slot (while most groups fill the slot, every group, short
+    ones padded with a child they have: max is idempotent; then only the groups that have that
+    child) and, for the few groups with more than ``max_arity`` children, the positions of their
+    remaining children (reduced by ``reduceat``).
+    ``np.maximum.reduceat`` pays a per-group overhead that dominates on binary trees; one gather per
+    child slot does not, and one group of 9 children no longer sends a whole level to ``reduceat``.
     """
 
     def __init__(self, parent: np.ndarray, start, *, max_arity: int = 0):
@@ -67,15 +70,29 @@ class Levels:
 
     @staticmethod
     def _slots(a, b, seg, pids, max_arity):
+        """``(pids, rows, tail)`` of one level for :meth:`max_up`: ``rows`` one ``(sel, child)`` per
+        child slot j < ``max_arity``: ``sel`` None and ``child`` (P,) positions of every group's j-th
+        child (short groups padded with their last), or, once fewer than half of the groups have a
+        j-th child, ``sel`` those groups and ``child`` their j-th children; ``tail`` None or
+        ``(groups, positions, offsets)`` of the children beyond the slots (for ``reduceat``)."""
         if not len(pids) or max_arity <= 0:
             return None
         cnt = np.diff(np.r_[seg, b - a])
-        arity = int(cnt.max())
-        if arity > max_arity:
-            return None  # reduceat for this level
-        pos = a + seg
-        child = np.stack([pos + np.minimum(j, cnt - 1) for j in range(arity)]).astype(np.intp)
-        return pids.astype(np.intp), child
+        arity = min(int(cnt.max()), max_arity)
+        pos = (a + seg).astype(np.intp)
+        rows = []
+        for j in range(arity):
+            sel = np.flatnonzero(cnt > j)
+            if j == 0 or 2 * sel.size > cnt.size:
+                rows.append((None, pos + np.minimum(j, cnt - 1)))
+            else:
+                rows.append((sel, pos[sel] + j))
+        big = np.flatnonzero(cnt > arity)  # groups with children beyond the slots
+        tail = None
+        if big.size:
+            rest = cnt[big] - arity
+            tail = (big, expand_ranges(pos[big] + arity, rest), np.cumsum(rest) - rest)
+        return pids.astype(np.intp), rows, tail
 
     @classmethod
     def from_depth(cls, parent: np.ndarray, depth: np.ndarray, **kw) -> "Levels":
@@ -104,10 +121,16 @@ class Levels:
                 if len(pids):
                     key[pids] = np.maximum(key[pids], np.maximum.reduceat(key[a:b], seg))
                 continue
-            pids, child = sl
+            pids, rows, tail = sl
             m = key.take(pids)
-            for row in child:
-                np.maximum(m, key.take(row), out=m)
+            for sel, child in rows:
+                if sel is None:
+                    np.maximum(m, key.take(child), out=m)
+                else:
+                    m[sel] = np.maximum(m.take(sel), key.take(child))
+            if tail is not None:
+                big, idx, off = tail
+                m[big] = np.maximum(m[big], np.maximum.reduceat(key.take(idx), off))
             key[pids] = m
         return key
 

@@ -31,6 +31,7 @@ scalar code. All chunks are dispatched before any result is read. Speed: see ``r
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from pathlib import Path
 from typing import NamedTuple
@@ -367,7 +368,7 @@ def _thin_parts(c_sil, theta, band):
     return c_sil * div_or_zero(band, theta), 2.0 * c_sil * band
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("metric", "has_gaze", "has_motion", "table_mode"))
 def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
     """``terms`` of a chunk -> (cull flag, what the key needs). Only that leaves the program (per-node
     arrays of 10^6 nodes no longer fit in cache): with ``table_mode`` the key-table indices of the
@@ -427,50 +428,72 @@ def _motion_keys_device(ktab, i_own, i_sil, theta, sil):
     return jnp.where(sil, jnp.maximum(k_own, table_gather(ktab, i_sil, theta)), k_own)
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("has_gaze",))
 def _table_inputs(ch, vp, has_gaze):
     """Table mode, ``terms`` in one XLA program without gathers: the silhouette-table word positions
-    (C, 2) int32 of each node, the key-table indices of its own, its silhouette and its thin-band
-    contrasts (the ``select_contrast`` choice between them is made in numpy once the facing flags are
-    known), theta, the band width, 2 c w and the frustum cull flag; the same term functions as
-    :func:`optim._terms.terms`."""
+    (C, 2) int32 of each node, the key-table index of its own contrast, its silhouette contrast,
+    eccentricity (deg), theta (deg), band width (deg), the frustum cull flag and whether its cone may
+    face both ways; the same term functions as :func:`optim._terms.terms`. The silhouette keys'
+    table indices are computed for the silhouette nodes alone (:func:`_silhouette_indices`: only
+    they need them, and the facing flags that pick them are known only after the numpy gathers)."""
     g = _geometry(ch, vp)
     _, theta = extent(vp, g)
     ecc = eccentricity(vp, g, theta) if has_gaze else jnp.zeros_like(theta)
     c_own, c_sil = contrast_pair(ch, vp)
     band = band_width(ch, vp, g, theta)
-    c_a, kc = _thin_parts(c_sil, theta, band)
     widx = facing_rows(ch, vp)[:, None] * 12 + ch.word_idx
-    idx = lambda c, th: table_index(c, th, ecc)  # noqa: E731
     cone_front, cone_back = cone_facing(ch, vp, g)
-    return (widx, idx(c_own, theta), idx(c_sil, theta), idx(c_a, theta), idx(c_sil, band), theta, band, kc,
-            frustum_culled(ch, vp, g), cone_front & cone_back)
+    return (widx, table_index(c_own, theta, ecc), c_sil, ecc, theta, band, frustum_culled(ch, vp, g),
+            cone_front & cone_back)
+
+
+@jax.jit
+def _silhouette_indices_xla(c_sil, ecc, theta, band):
+    c_a, kc = _thin_parts(c_sil, theta, band)
+    return (table_index(c_sil, theta, ecc), table_index(c_a, theta, ecc), table_index(c_sil, band, ecc), kc)
+
+
+def _silhouette_indices(c_sil, ecc, theta, band):
+    """Key-table indices of the silhouette, widest-channel and band contrasts and ``2 c w`` (the
+    thin-band parts, :func:`thin_band_key`) of some nodes, numpy (S,) in and out; the XLA arithmetic of
+    :func:`table_index` (bit-identical to the XLA path), padded to a power of two >= 1024 nodes so that
+    few lengths compile."""
+    n = c_sil.shape[0]
+    size = max(1024, 1 << (n - 1).bit_length())
+    pad = lambda x: np.pad(x, (0, size - n))  # noqa: E731  (padding: contrast 0 -> index -1)
+    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(pad(c_sil), pad(ecc), pad(theta), pad(band)))
 
 
 def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
     """Raw key (M,) float32 and cull flag (M,) bool, table mode: ``classify`` and the table gathers
     in numpy (the same values as the XLA path of :func:`_raw_keys` with ``fast=False``); the
-    thin-band gathers only for silhouette nodes."""
+    thin-band keys only for silhouette nodes, whose table indices come from one XLA call over the
+    silhouettes of every chunk. The chunks' programs run asynchronously (``jax.jit``;
+    ``eqx.filter_jit`` would wait for each result), so a chunk's numpy work overlaps the next
+    chunk's program."""
     outs = [_table_inputs(ch, vp, has_gaze) for ch in ctx.chunks]  # dispatch all chunks first
     key = np.empty(ctx.m, np.float32)
     culled = np.empty(ctx.m, bool)
     tab = ktab.host
+    sil_pos, sil_cols = [], []
     a = 0
     for hm, n, out in zip(ctx.host_masks, ctx.sizes, outs):
-        widx, i_own, i_sil, i_a, i_b, theta, band, kc, out_of_view, cone_both = (np.asarray(x)[:n] for x in out)
+        widx, i_own, c_sil, ecc, theta, band, out_of_view, cone_both = (np.asarray(x)[:n] for x in out)
         front, back = facing_host(widx, hm, n)
         b = a + n
         culled[a:b], _, sil = classify(hm.nonempty[:n], front, back, out_of_view, (cone_both, cone_both))
-        k = table_gather(tab, i_own, theta, np)
+        key[a:b] = table_gather(tab, i_own, theta, np)
         s = np.flatnonzero(sil)
-        if s.size:
-            th, bd = theta[s], band[s]
-            m_band, f_star = (np.float32(x) for x in ktab.band)
-            k[s] = thin_band_key(k[s], table_gather(tab, i_sil[s], th, np), table_gather(tab, i_a[s], th, np),
-                                 table_gather(tab, i_b[s], bd, np), kc[s] * m_band, np.float32(2.0) * th * f_star,
-                                 True, np)
-        key[a:b] = k
+        sil_pos.append(s + a)
+        sil_cols.append((c_sil[s], ecc[s], theta[s], band[s]))
         a = b
+    s = np.concatenate(sil_pos)
+    if s.size:
+        c_sil, ecc, th, bd = (np.concatenate(c) for c in zip(*sil_cols))
+        i_sil, i_a, i_b, kc = _silhouette_indices(c_sil, ecc, th, bd)
+        m_band, f_star = (np.float32(x) for x in ktab.band)
+        key[s] = thin_band_key(key[s], table_gather(tab, i_sil, th, np), table_gather(tab, i_a, th, np),
+                               table_gather(tab, i_b, bd, np), kc * m_band, np.float32(2.0) * th * f_star, True, np)
     return key, culled
 
 

@@ -320,6 +320,30 @@ def test_monotone_gathers_equal_reduceat(sphere_tree):
         assert np.array_equal(lv.max_up(key.copy()), lv.reduce_up(key.copy(), np.maximum, include_self=True))
 
 
+@pytest.mark.parametrize("max_arity", [1, 2, 3, 8])
+def test_slot_gathers_with_wide_groups_equal_reduceat(max_arity):
+    """Levels whose groups exceed ``max_arity`` children (the rest reduced by reduceat) give the same
+    maxima as reduceat over whole levels; a random breadth-first tree with arities 1 to 12."""
+    from optim._levels import Levels
+
+    rng = np.random.default_rng(max_arity)
+    parent, depth, frontier = [-1], [0], [0]
+    for d in range(1, 6):
+        nxt = []
+        for p in frontier:
+            for _ in range(int(rng.integers(0, 13)) if d < 5 else 0):
+                nxt.append(len(parent))
+                parent.append(p)
+                depth.append(d)
+        frontier = nxt or frontier[:1]
+    lv = Levels.from_depth(np.array(parent), np.array(depth), max_arity=max_arity)
+    assert any(sl is not None and sl[2] is not None for sl in lv.slots[1:])  # some group is wider
+    for _ in range(5):
+        key = rng.random(len(parent)).astype(np.float32)
+        key[rng.random(key.size) < 0.4] = 0.0
+        assert np.array_equal(lv.max_up(key.copy()), lv.reduce_up(key.copy(), np.maximum, include_self=True))
+
+
 def test_padded_chunks_give_the_same_keys(sphere_tree, monkeypatch):
     """Several chunks of odd lengths (padded internally) give the keys of a single chunk."""
     from optim import _context as C
