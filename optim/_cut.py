@@ -343,7 +343,10 @@ def _extract_parts(tree, unf):
     size = tree.leaf_hi.take(bnd) - lo.take(order)
     if int(size.sum()) != V:  # not closed under ancestors: the leaf ranges do not tile 0..V-1
         return _reference_parts(tree, unf)
-    fb = np.repeat(np.arange(nb, dtype=np.int32), size).take(corner_lp.take(keep, axis=0))  # (T', 3) boundary ids
+    at = np.zeros(V, dtype=np.int32)  # boundary id at every leaf position: +1 where each range starts, summed
+    at[lo.take(order[1:])] = 1
+    np.cumsum(at, out=at)
+    fb = at.take(_take_rows(corner_lp, keep))  # (T', 3) boundary ids
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
     ub = np.flatnonzero(used)
@@ -354,7 +357,7 @@ def _extract_parts(tree, unf):
     faces = newidx.take(fb)
     nodes = bnd.take(srt)
     out_v = tree.min_vertex.take(nodes)
-    verts = tree.position.take(nodes, axis=0).astype(tree.vertices.dtype)
+    verts = _take_rows(tree.position, nodes).astype(tree.vertices.dtype)
     leaf = np.flatnonzero(tree.child_count.take(nodes) == 0)  # leaves give back the input vertex exactly
     verts[leaf] = tree.vertices.take(out_v.take(leaf), axis=0)
     colors = None
@@ -363,6 +366,13 @@ def _extract_parts(tree, unf):
         if tree.colors is not None:
             colors[leaf] = tree.colors.take(out_v.take(leaf), axis=0)
     return verts, faces, colors, keep
+
+
+def _take_rows(a: np.ndarray, idx) -> np.ndarray:
+    """``a.take(idx, axis=0)`` for a C-contiguous (n, k) array, as one gather of k-element records
+    (numpy's take along axis 0 copies row by row, about 1.3x slower)."""
+    rec = np.ascontiguousarray(a).view(np.dtype((np.void, a.dtype.itemsize * a.shape[1]))).reshape(-1)
+    return rec.take(idx).view(a.dtype).reshape(-1, a.shape[1])
 
 
 def _unfolded_mask(tree, cut, who: str = "extract") -> np.ndarray:

@@ -253,6 +253,18 @@ def make_model(spec=None):
     return entry.build(inner)
 
 
+_DEFAULT_CACHE: dict = {}
+
+
 def default_model():
-    """:data:`DEFAULT_MODEL` with its default constants (stelaCSF's published fit [MAC22])."""
-    return make_model(DEFAULT_MODEL)
+    """:data:`DEFAULT_MODEL` with its default constants (stelaCSF's published fit [MAC22]).
+
+    One shared instance (models are immutable): building stelaCSF's constants costs about 2 ms, which
+    ``optim.score`` would otherwise pay on every view. A new instance is built when
+    :data:`DEFAULT_MODEL` or its registry entry changes."""
+    entry = _lookup().get(_key(DEFAULT_MODEL))
+    hit = _DEFAULT_CACHE.get(DEFAULT_MODEL)
+    if hit is None or hit[0] != entry:
+        _DEFAULT_CACHE.clear()
+        hit = _DEFAULT_CACHE[DEFAULT_MODEL] = (entry, make_model(DEFAULT_MODEL))
+    return hit[1]
