@@ -246,10 +246,15 @@ REF_CASES = [((16, 40, -30), (200, 135), (60, 0), 0.12), ((-20, 25, 10), (40, 30
 
 
 @pytest.mark.parametrize("case", range(len(REF_CASES)))
-def test_vectorized_refinement_equals_the_slow_reference(case):
+def test_vectorized_refinement_equals_the_slow_reference(case, monkeypatch):
     """Every criteria combination, measured and imposed velocity: the vectorized-by-level refinement
     (with its bounds that skip exact work) splits exactly the squares the one-square-at-a-time reference
-    splits and draws the same triangles."""
+    splits and draws the same triangles, with the coarse levels' batched float64 test (the default on
+    this grid) and with the float32 bound pass on every level."""
+    from optim import _terrain as T
+
+    default = T._SMALL_LEVELS
+
     eye, fov, gaze, xi = REF_CASES[case]
     hf = Heightfield(fractal_heightfield(33, seed=10 + case, relief=8.0), 1.0)
     eye = np.array(eye, float)
@@ -263,10 +268,79 @@ def test_vectorized_refinement_equals_the_slow_reference(case):
         on = {k: bool(mask >> b & 1) for b, k in enumerate(names)}
         for imposed in ((None, 45.0) if on["velocity"] else (None,)):
             crit = TerrainCriteria(xi=xi, velocity_deg_s=imposed, **on)
-            lod = refine_terrain(hf, cam, crit, prev, dt_s=1 / 30)
             raw, split, tri = _reference_refine(hf, cam, crit, prev, 1 / 30)
-            for l in range(hf.levels):
-                np.testing.assert_array_equal(lod.split[l], split[l], err_msg=f"{on} {imposed} level {l}")
-            assert lod.triangles == tri, (on, imposed)
+            for small in (default, -1):
+                monkeypatch.setattr(T, "_SMALL_LEVELS", small)
+                lod = refine_terrain(hf, cam, crit, prev, dt_s=1 / 30)
+                for l in range(hf.levels):
+                    np.testing.assert_array_equal(lod.split[l], split[l], err_msg=f"{on} {imposed} {small} level {l}")
+                assert lod.triangles == tri, (on, imposed, small)
             counts.add(tri)
     assert len(counts) >= 4  # the criteria act in this case (not all full or all empty)
+
+
+# ------------------------------------------------------------------ the float32 bound pass
+def test_bound_pass_equals_the_float64_path(monkeypatch):
+    """The float32 bound pass (strips of a few rows here, so several per level) with its float64 fallback
+    splits exactly the squares the float64 test alone splits, for every criteria combination over frames
+    of a fast flight (measured and imposed velocity, the motion bound and the velocity pass)."""
+    from experiments.terrain import FLIGHT, flight_cameras
+    from optim import _terrain as T
+
+    hf = Heightfield(fractal_heightfield(129, seed=4, relief=60.0), 10.0)
+    cams = flight_cameras(hf, dict(FLIGHT))
+    names = ("size", "periphery", "velocity", "cull")
+    monkeypatch.setattr(T, "_STRIP_NODES", 600)
+    counts = set()
+    for k in (40, 301):
+        prev = (cams[k - 1], cams[k - 2], cams[k - 3])
+        for mask in range(16):
+            on = {n: bool(mask >> b & 1) for b, n in enumerate(names)}
+            if not on["size"]:
+                continue
+            for imposed in ((None, 45.0) if on["velocity"] else (None,)):
+                crit = TerrainCriteria(xi=0.8, velocity_deg_s=imposed, **on)
+                monkeypatch.setattr(T, "_BOUND_MIN", 0)
+                fast = refine_terrain(hf, cams[k], crit, prev)
+                monkeypatch.setattr(T, "_BOUND_MIN", 1 << 40)  # the float64 test everywhere
+                ref = refine_terrain(hf, cams[k], crit, prev)
+                for l in range(hf.levels):
+                    np.testing.assert_array_equal(fast.split[l], ref.split[l], err_msg=f"{k} {on} {imposed} level {l}")
+                assert fast.triangles == ref.triangles
+                counts.add(ref.triangles)
+    assert len(counts) >= 8  # the criteria act (not all full or all empty)
+
+
+def test_bound_pass_error_budget():
+    """The error bounds the bound pass relies on hold with room: float32 directions against float64 (world
+    axes and rotated), the chord series bound, and JAX's float32 H' against the closed form on its
+    float32 constants."""
+    from optim import _terrain as T
+
+    rng = np.random.default_rng(0)
+    z = rng.uniform(0.0, 600.0, (40, 50))
+    X, Z = np.arange(50) * 10.0, np.arange(40) * 10.0
+    worst = 0.0
+    for _ in range(20):
+        eye = rng.uniform([-100.0, 0.0, -100.0], [600.0, 900.0, 500.0])
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        P = np.stack(np.broadcast_arrays(X[None, :], z, Z[:, None]), -1) - eye
+        for rot in (None, R):
+            d = P if rot is None else P @ rot.T
+            d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            got = T._dirs32(z, X, Z, eye, rot)
+            got = got[0] if rot is None else got
+            worst = max(worst, float(np.max(np.linalg.norm(np.stack(got, -1) - d, axis=-1))))
+    assert worst < T._EPS_DIR / 4, worst
+    c = np.linspace(1e-4, T._CHORD_MAX, 10001)
+    exact = 2 * np.arcsin(c / 2)
+    assert np.all(exact <= c + c ** 3 * T._SERIES) and np.all(exact >= c + c ** 3 / 24)
+    assert np.all(2 * np.arcsin(np.linspace(0, 2, 1001) / 2) <= np.pi / 2 * np.linspace(0, 2, 1001) + 1e-12)
+    for xi in (3.2, 0.4, None):
+        e = np.concatenate([rng.uniform(0, 180, 20000), rng.uniform(0, 10, 5000), [0.0]])
+        v = np.concatenate([10 ** rng.uniform(-3, 4, 20000), 10 ** rng.uniform(-1, 2.5, 5000), [0.0]])
+        xi32, gmax, gint, gsl, gmin, ms, mr = T._acuity_consts(xi)
+        e32, v32 = e.astype(np.float32).astype(float), v.astype(np.float32).astype(float)
+        G = np.clip(gint - gsl * np.log(np.maximum(v32, 1e-300)), gmin, gmax)
+        H = np.minimum(xi32, G * np.minimum(1.0, ms / (1 + mr * e32) ** 2))
+        assert np.max(np.abs(T._acuity(xi, e, v) / H - 1)) < T._MU / 10
