@@ -459,9 +459,10 @@ def _silhouette_indices(c_sil, ecc, theta, band):
     :func:`table_index` (bit-identical to the XLA path), padded to a power of two >= 1024 nodes so that
     few lengths compile."""
     n = c_sil.shape[0]
-    size = max(1024, 1 << (n - 1).bit_length())
-    pad = lambda x: np.pad(x, (0, size - n))  # noqa: E731  (padding: contrast 0 -> index -1)
-    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(pad(c_sil), pad(ecc), pad(theta), pad(band)))
+    cols = np.zeros((4, max(1024, 1 << (n - 1).bit_length())), np.float32)  # padding: contrast 0 -> index -1
+    for row, x in zip(cols, (c_sil, ecc, theta, band)):
+        row[:n] = x
+    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(*cols))
 
 
 def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
