@@ -24,9 +24,12 @@ have nothing to fold and get 0): ``classify`` -> ``terms`` -> ``key`` -> ``propa
 The stages run as several XLA programs rather than one: fused together, XLA:CPU recomputes shared
 per-node arithmetic inside scalar gather loops. Table mode (perceptual keys without motion, the
 default) runs one XLA program per chunk without gathers (:func:`_table_inputs`: table-word positions,
-the key-table indices of the own and the silhouette contrast, theta, frustum cull) and does both table
-gathers in numpy (:func:`_table_keys_host`): XLA:CPU fuses index arithmetic into gather loops as
-scalar code. All chunks are dispatched before any result is read. Speed: see ``reports/bench_optim.md``.
+the key-table index of the own contrast, the silhouette contrast, theta, the band, frustum cull) and
+does the gathers in numpy (:func:`_table_keys_host`): XLA:CPU fuses index arithmetic into gather loops
+as scalar code. The silhouette nodes' table indices come from one more XLA program over those nodes
+alone (:func:`_silhouette_indices`, about a fifth of the nodes). All chunks are dispatched before any
+result is read, with ``jax.jit`` (asynchronous; ``eqx.filter_jit`` blocks on each call's result), so
+numpy's work on one chunk overlaps XLA's on the next. Speed: see ``reports/bench_optim.md``.
 """
 
 from __future__ import annotations
