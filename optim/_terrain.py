@@ -400,14 +400,15 @@ def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
     lo = np.maximum(near - 0.5 * ext, 0.0)
     hi = near.copy()
 
-    def corners(sel):  # (len(sel), 4, 3) directions of the selected squares' corners
-        return np.stack([Ck[:, sel] for Ck in C], -1).transpose(1, 0, 2)
+    def edges(sel):  # (4 len(sel), 3) each: the selected squares' edges i (corner i to i + 1), edge by edge
+        S = np.stack([Ck[:, sel] for Ck in C], -1)  # (4, len(sel), 3)
+        return S.reshape(-1, 3), np.roll(S, -1, 0).reshape(-1, 3)
 
     cand = np.flatnonzero(near <= ext * (1.0 + 1e-9) + 1e-12)
     if len(cand):
-        Dc = corners(cand)
-        sides = np.stack([_cross(Dc[:, i], Dc[:, (i + 1) % 4]) @ g for i in range(4)], -1)
-        inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((Dc @ g) > 0).all(1)
+        Pc, Qc = edges(cand)
+        sides = (_cross(Pc, Qc) @ g).reshape(4, -1).T
+        inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((Pc @ g).reshape(4, -1).T > 0).all(1)
         lo[cand[inside]] = 0.0
         hi[cand[inside]] = 0.0
     sure = ext >= 1.0 / (2.0 * _acuity(criteria.xi, hi, v))  # perceptible even at the largest possible e
@@ -415,8 +416,7 @@ def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
     rest = np.flatnonzero(~sure)
     amb = rest[ext[rest] >= 1.0 / (2.0 * _acuity(criteria.xi, lo[rest], v[rest]))]  # maybe, at the smallest e
     if len(amb):
-        Da = corners(amb)
-        e = np.min(np.stack([_arc_distance(g, Da[:, i], Da[:, (i + 1) % 4]) for i in range(4)], -1), -1)
+        e = _arc_distance(g, *edges(amb)).reshape(4, -1).min(0)
         out[amb] = ext[amb] >= 1.0 / (2.0 * _acuity(criteria.xi, e, v[amb]))
     return out
 
