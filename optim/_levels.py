@@ -140,5 +140,5 @@ class Levels:
         par = self.parent
         for k in range(1, len(self.groups)):
             a, b = self.groups[k][:2]
-            arr[a:b] = ufunc(arr[a:b], arr[par[a:b]])
+            ufunc(arr[a:b], arr.take(par[a:b]), out=arr[a:b])
         return arr

@@ -185,12 +185,13 @@ def facing_host(widx: np.ndarray, hm, n: int):
     m = table.take(widx)
     m &= hm.val[:n]
     m = m[:, 0] | m[:, 1]
-    if hm.wide.size:  # (wide masks are never padding): whole rows, OR-ed pairwise (a short-axis reduce is slow)
+    if hm.wide.size:  # (wide masks are never padding): whole rows, OR-ed column by column
         mw = table.reshape(-1, 12).take(widx[hm.wide, 0] // 12, axis=0)
         mw &= hm.wide_val
-        mw = mw[:, :6] | mw[:, 6:]
-        mw = mw[:, :3] | mw[:, 3:]
-        m[hm.wide] = mw[:, 0] | mw[:, 1] | mw[:, 2]
+        acc = mw[:, 0].copy()
+        for j in range(1, 12):
+            acc |= mw[:, j]
+        m[hm.wide] = acc
     half = m.view(np.uint32).reshape(-1, 2)  # (low word: front, high word: back) of each node
     if np.little_endian:
         return half[:, 0] != 0, half[:, 1] != 0
