@@ -22,7 +22,7 @@ from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut,
 from ._flips import Flips, cut_flips
 from ._view import View
 from ._context import ScoringContext, scoring_context
-from ._relight import cull_columns, normal_cones, relit_columns, slab_half_width
+from ._relight import cull_columns, normal_cones, region_columns, relit_columns, slab_half_width
 from ._score import NodeTerms, node_terms, score, default_model, prepare_motion_table
 from ._points import (PointHierarchy, PointTerms, Traversal, build_points, load_points, point_terms, points_from_mesh,
                       save_points, splat_discs, traverse, walk)

@@ -213,20 +213,22 @@ def _build(tree) -> ScoringContext:
     node, levels = _internal_levels(tree, n)
     center = np.asarray(tree.center, np.float32)[node]
     if isinstance(tree, VertexTree):  # what a fold can touch (culled folds are not free)
-        from ._relight import cull_columns, normal_cones, slab_half_width
+        from ._relight import cull_columns, normal_cones, region_columns, slab_half_width
 
         mask, cull_radius, half = cull_columns(tree)
         axis = normal_cones(tree)[0]
         slab = slab_half_width(tree)
+        lum = region_columns(tree)  # what the triangles a fold changes show (their corners' colours)
     else:  # a bare tree-like object: its own masks and spheres; vertex displacement as the slab; no cone
         mask, cull_radius, slab = tree.normal_mask, tree.radius, tree.geom_error
         axis, half = np.zeros((n, 3), np.float32), np.full(n, np.pi, np.float32)
+        lum = dict(lum_min=tree.lum_min, lum_max=tree.lum_max, fold_delta=tree.fold_delta)
     mask = np.ascontiguousarray(np.asarray(mask, np.uint8)[node]).view("<u4")
-    lum_min, lum_max = np.asarray(tree.lum_min, np.float32), np.asarray(tree.lum_max, np.float32)
+    lum_min, lum_max = np.asarray(lum["lum_min"], np.float32), np.asarray(lum["lum_max"], np.float32)
     cols = dict(cx=center[:, 0], cy=center[:, 1], cz=center[:, 2], radius=np.asarray(tree.radius)[node],
                 cull_radius=np.asarray(cull_radius)[node], ax=axis[node, 0], ay=axis[node, 1], az=axis[node, 2],
                 cone_cos=np.cos(np.minimum(half[node], np.pi / 2)), cone_sin=np.sin(np.minimum(half[node], np.pi / 2)),
-                lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(tree.fold_delta)[node],
+                lum_min=lum_min[node], lum_max=lum_max[node], fold_delta=np.asarray(lum["fold_delta"])[node],
                 geom_error=np.asarray(tree.geom_error)[node], slab=np.asarray(slab)[node])
     chunks, sizes = _chunks(cols, mask, len(node))
     scene = _scene_lum(lum_min, lum_max)
@@ -254,8 +256,9 @@ def scoring_context(tree, lighting=None) -> ScoringContext:
     """The device arrays :func:`optim.score` needs for ``tree``: built once, cached on an
     :class:`optim.VertexTree` (other tree-like objects are rebuilt on every call). ``lighting``
     (an :class:`optim.Lighting`, from ``View.lighting``) swaps in the columns of a renderer relighting
-    the mesh with it (:func:`optim._relight.relit_columns`); None keeps the tree's pre-lit or colour
-    luminance (the seeds' baked case)."""
+    the mesh with it (:func:`optim._relight.relit_columns`); None uses the tree's pre-lit or colour
+    luminance (the seeds' baked case) over the triangles each fold changes
+    (:func:`optim._relight.region_columns`)."""
     if not isinstance(tree, VertexTree):
         if lighting is not None:
             raise PlodError("score: relit scoring (View.lighting) needs an optim.VertexTree")

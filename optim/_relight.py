@@ -16,6 +16,11 @@ Two things the seeds' pre-lit model [LHNW00 §4; LH01 §5.2] does not see, both 
   larger distance of the proxy's value from the range's ends, as for the pre-lit columns. A flat,
   evenly lit region has a zero-width cone and ~0 contrast; a fold that tilts normals toward the light
   has a wide cone and a nonzero one.
+* **Baked colours over the changed triangles** (:func:`region_columns`). Without relighting a renderer
+  interpolates the vertex colours (or pre-lit intensities) over each triangle, so a fold changes the
+  triangles incident to its vertices, whose colours come from their neighbours too: the range is that
+  of the closed 1-ring, and the change is bounded by the corners' colour change plus the largest
+  luminance slope over those triangles times the vertices' displacement (``geom_error``).
 * **Culled folds are not free** (:func:`cull_columns`). Folding a node moves its vertices; the
   triangles that change are all those incident to them, and the vertex normals a renderer interpolates
   over visible triangles include the faces around their neighbours. A node is culled (key 0) only if
@@ -45,7 +50,7 @@ from ._mesh import face_normals
 from ._normal_cube import _unit, normal_cells
 from ._tree import Lighting, _srgb_luminance, _vertex_normals
 
-__all__ = ["normal_cones", "relit_columns", "cull_columns", "slab_half_width"]
+__all__ = ["normal_cones", "relit_columns", "region_columns", "cull_columns", "slab_half_width"]
 
 
 def _tree_nodes(tree, per_vertex: np.ndarray) -> np.ndarray:
@@ -149,6 +154,100 @@ def _lambert_range(axis, half, light: Lighting):
         hi_cos, lo_cos, mid = hi, lo, np.abs(mid)
     shade = lambda c: np.clip(light.ambient + light.diffuse * np.maximum(c, 0.0), 0.0, 1.0)  # noqa: E731
     return shade(lo_cos), shade(hi_cos), shade(mid)
+
+
+def _region_range(tree):
+    """(lowest, highest) per-vertex relative luminance (``tree.lum`` at the leaves: the colours' or the
+    pre-lit intensities) over the vertices of every face incident to a vertex each node supports (its
+    closed 1-ring), (N,) float64."""
+    f = np.asarray(tree.faces, np.int64)
+    lum_v = np.asarray(tree.lum, np.float64)[np.asarray(tree.vertex_node, np.int64)]
+    lo, hi = lum_v.copy(), lum_v.copy()
+    if len(f):
+        fl = lum_v[f]
+        fmin, fmax = fl.min(1), fl.max(1)
+        for k in range(3):
+            np.minimum.at(lo, f[:, k], fmin)
+            np.maximum.at(hi, f[:, k], fmax)
+    lv = tree.levels
+    return lv.reduce_up(_tree_nodes(tree, lo), np.minimum), lv.reduce_up(_tree_nodes(tree, hi), np.maximum)
+
+
+def _affine_gradient(v, f, val):
+    """|grad| (T,) of the affine interpolant of per-vertex ``val`` (V,) over each face (per object unit);
+    inf on a zero-area face whose corners differ."""
+    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    d1, d2 = val[f[:, 1]] - val[f[:, 0]], val[f[:, 2]] - val[f[:, 0]]
+    a2 = np.einsum("ij,ij->i", np.cross(e1, e2), np.cross(e1, e2))
+    num = d1 * d1 * np.einsum("ij,ij->i", e2, e2) - 2 * d1 * d2 * np.einsum("ij,ij->i", e1, e2) + d2 * d2 * np.einsum("ij,ij->i", e1, e1)
+    ok = a2 > 0
+    g = np.sqrt(np.maximum(num, 0.0) / np.where(ok, a2, 1.0))
+    return np.where(ok, g, np.where((d1 != 0) | (d2 != 0), np.inf, 0.0))
+
+
+def _face_luminance_slope(tree):
+    """(T,) float64: a bound on how fast the relative luminance a renderer shows changes across each
+    face (per object unit). A renderer interpolates the sRGB colours affinely over the face; luminance
+    is ``sum_k w_k lin(c_k)`` (Rec. 709 weights ``w``, ``lin`` the sRGB EOTF, convex and increasing), so
+    it changes by at most ``sum_k w_k lin'(max_k) |grad c_k|`` per unit length (``max_k`` the face's
+    largest value of channel k). Without colours: the gradient of the pre-lit vertex intensities."""
+    v = np.asarray(tree.vertices, np.float64)
+    f = np.asarray(tree.faces, np.int64)
+    if tree.colors is None:
+        lum_v = np.asarray(tree.lum, np.float64)[np.asarray(tree.vertex_node, np.int64)]
+        return _affine_gradient(v, f, lum_v)
+    c = np.clip(np.asarray(tree.colors, np.float64), 0.0, 1.0)
+    out = np.zeros(len(f))
+    for k, w in enumerate((0.2126, 0.7152, 0.0722)):
+        top = c[f, k].max(1)
+        slope = np.maximum(1 / 12.92, 2.4 / 1.055 * ((top + 0.055) / 1.055) ** 1.4)  # lin' at the face's top
+        out += w * slope * _affine_gradient(v, f, c[:, k])
+    return out
+
+
+def region_columns(tree) -> dict:
+    """The luminance columns of ``tree`` as a renderer shows its vertex colours (or pre-lit
+    intensities) without relighting (the seeds' baked case): ``lum`` (proxy), ``lum_min``, ``lum_max``
+    and ``fold_delta`` (N,) float32, relative linear luminance in [0, 1] (leaves: ``fold_delta`` 0).
+
+    A fold moves every vertex its node supports to the proxy, so it changes every triangle incident to
+    them, and a renderer interpolates each such triangle's colour from *all three* of its corners. The
+    tree's own columns (the supported vertices' range against the proxy colour, [LH01 §5.2]) bound
+    only the change of the corners' colours; moving the corners also moves the colour field of those
+    triangles across the screen (a fold of evenly coloured vertices beside a dark crease drags the
+    crease's gradient with it), which they score as no change. Per pixel, the change is at most
+
+    * the corners' colour change (at most the tree's ``fold_delta``), plus
+    * the displacement part: the old field read at a point at most ``geom_error`` (the largest
+      distance of a supported vertex from the proxy) away, along a path inside those triangles, so at
+      most ``G geom_error``, ``G`` the largest luminance slope over the triangles
+      (:func:`_face_luminance_slope`);
+
+    and at most the whole range of their corners and the proxy (before and after a fold every such
+    pixel interpolates them). So ``fold_delta = min(hi - lo, tree.fold_delta + G geom_error)`` with
+    ``lo``, ``hi`` the range over the closed 1-ring and the proxy, which are also ``lum_min`` and
+    ``lum_max`` (the darkest value such a pixel can have is the base of the Michelson contrast).
+    Cached."""
+
+    def build():
+        lo, hi = _region_range(tree)
+        proxy = np.asarray(tree.lum, np.float64)
+        lo, hi = np.minimum(lo, proxy), np.maximum(hi, proxy)
+        f = np.asarray(tree.faces, np.int64)
+        slope_v = np.zeros(tree.n_vertices)
+        if len(f):
+            fs = _face_luminance_slope(tree)
+            for k in range(3):
+                np.maximum.at(slope_v, f[:, k], fs)
+        slope = tree.levels.reduce_up(_tree_nodes(tree, slope_v), np.maximum)
+        err = np.asarray(tree.geom_error, np.float64)
+        move = np.where(err > 0, slope * np.where(err > 0, err, 1.0), 0.0)  # inf slope x 0 distance: none
+        delta = np.minimum(hi - lo, np.asarray(tree.fold_delta, np.float64) + move)
+        delta[np.asarray(tree.child_count) == 0] = 0.0
+        f32 = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
+        return dict(lum=f32(proxy), lum_min=f32(lo), lum_max=f32(hi), fold_delta=f32(delta))
+
+    return tree.derived("relight.region_columns", build)
 
 
 def _albedo(tree):

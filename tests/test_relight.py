@@ -107,6 +107,77 @@ def test_ambient_only_light_gives_back_the_colour_columns():
     np.testing.assert_allclose(cols["fold_delta"], tree.fold_delta, atol=2e-6)
 
 
+def test_region_columns_hold_every_changed_triangle_and_the_displacement_bound():
+    v, f, c = optim.bumpy_sphere(3, colors=True, amplitude=0.15)
+    tree = optim.build_tree(v, f, c)
+    cols = optim.region_columns(tree)
+    lum_v = optim.vertex_luminance(v, f, c).astype(np.float64)
+    slope = _face_slopes(v, f, c)
+    rng = np.random.default_rng(2)
+    internal = np.flatnonzero(tree.child_count > 0)
+    for node in rng.choice(internal, 60, replace=False):
+        faces = incident_faces(tree, supported(tree, node))
+        lo = min(lum_v[tree.faces[faces]].min(), tree.lum[node])
+        hi = max(lum_v[tree.faces[faces]].max(), tree.lum[node])
+        assert cols["lum_min"][node] == pytest.approx(lo, abs=1e-6)
+        assert cols["lum_max"][node] == pytest.approx(hi, abs=1e-6)
+        want = min(hi - lo, tree.fold_delta[node] + slope[faces].max() * tree.geom_error[node])
+        assert cols["fold_delta"][node] == pytest.approx(want, rel=1e-4, abs=1e-6)
+        assert cols["fold_delta"][node] >= tree.fold_delta[node] - 1e-6  # never less than the tree's own
+
+
+def _face_slopes(v, f, c):
+    """Per-face bound of the displayed luminance's slope, by brute force: the sRGB EOTF's largest
+    derivative over the face times each channel's gradient (least squares in the face's plane)."""
+    out = np.zeros(len(f))
+    for t, face in enumerate(f):
+        p = v[face].astype(np.float64)
+        e = np.stack([p[1] - p[0], p[2] - p[0]])
+        for k, w in enumerate((0.2126, 0.7152, 0.0722)):
+            d = c[face[1:], k].astype(np.float64) - c[face[0], k]
+            g = e.T @ np.linalg.solve(e @ e.T, d)  # the in-plane gradient: e g = d, g in span(e)
+            top = c[face, k].max()
+            slope = max(1 / 12.92, 2.4 / 1.055 * ((top + 0.055) / 1.055) ** 1.4)
+            out[t] += w * slope * np.linalg.norm(g)
+    return out
+
+
+def _striped_plane(n=24):
+    """A flat grid seen head on, bright (0.8 grey) with one dark (0.1) column of vertices."""
+    v, f = optim.grid_mesh(n, n, (2.0, 2.0))
+    v = v - np.array([1.0, 1.0, 0.0])
+    c = np.full((len(v), 3), 0.8, np.float32)
+    xs = np.unique(v[:, 0])
+    c[np.isclose(v[:, 0], xs[n // 2])] = 0.1
+    return v, f, c
+
+
+def test_baked_fold_beside_a_dark_line_is_not_free():
+    # Folding evenly bright vertices next to a dark line drags the line's gradient along: the
+    # triangles the fold changes interpolate the dark neighbours' colour. The tree's own columns (the
+    # supported vertices only) see no change at all; the region's columns see the displacement times
+    # the slope toward the dark line (at most the bright-to-dark range), and from this viewing
+    # distance such a fold is visible (key > 1).
+    v, f, c = _striped_plane()
+    tree = optim.build_tree(v, f, c)
+    region = optim.region_columns(tree)
+    dark = c[:, 0] < 0.5
+    view = optim.View.framing(v, 30.0, direction=(0.0, 0.0, 1.0), gaze=None)
+    keys = optim.score(tree, view)
+    nt = optim.node_terms(tree, view)
+    missed = [n for n in np.flatnonzero(tree.child_count > 0)
+              if not dark[supported(tree, n)].any() and dark[tree.faces[incident_faces(tree, supported(tree, n))]].any()
+              and not nt.silhouette[n] and not nt.culled[n]]
+    assert missed
+    lum = optim.vertex_luminance(v, f, c)
+    for n in missed:
+        assert tree.fold_delta[n] < 1e-6  # the tree's own contrast: nothing changes
+        assert region["lum_min"][n] == pytest.approx(lum[dark].max(), abs=1e-6)
+        assert region["fold_delta"][n] > 0.05
+        assert nt.own_contrast[n] > 0.1
+    assert max(keys[n] for n in missed) > 1.0
+
+
 def test_relit_scoring_differs_from_baked_and_is_cached():
     v, f = optim.bumpy_sphere(4)
     tree = optim.build_tree(v, f)

@@ -85,12 +85,14 @@ def test_silhouette_contrast_uses_scene_extremes(sphere_tree):
     black, peak = float(d.black_level), float(d.peak_luminance)
     cd = lambda rel: black + (peak - black) * np.clip(rel, 0, 1)  # noqa: E731
     mich = lambda a, b: abs(a - b) / (a + b)  # noqa: E731
-    lo_scene = min(tree.lum_min.min(), 0.0)
-    hi_scene = tree.lum_max.max()
+    cols = optim.region_columns(tree)  # what the triangles a fold changes show (baked: no lighting)
+    lum_min, lum_max, fold_delta = cols["lum_min"], cols["lum_max"], cols["fold_delta"]
+    lo_scene = min(lum_min.min(), 0.0)
+    hi_scene = lum_max.max()
     for n in tree.internal[:200]:
-        own = mich(cd(tree.lum_min[n] + tree.fold_delta[n]), cd(tree.lum_min[n]))
+        own = mich(cd(lum_min[n] + fold_delta[n]), cd(lum_min[n]))
         if t.silhouette[n]:
-            sil = max(mich(cd(tree.lum_max[n]), cd(lo_scene)), mich(cd(hi_scene), cd(tree.lum_min[n])))
+            sil = max(mich(cd(lum_max[n]), cd(lo_scene)), mich(cd(hi_scene), cd(lum_min[n])))
             want = max(own, sil)
         else:
             want = own
