@@ -125,6 +125,11 @@ def _build_slab(tree):
         sz = hi[nodes] - lo[nodes]
         dist = np.abs(np.einsum("ij,ij->i", vd[idx] - np.repeat(proxy[nodes], sz, axis=0), np.repeat(ax[nodes], sz, axis=0)))
         out[nodes] = np.maximum.reduceat(dist, off)
+    f = np.asarray(tree.faces, np.int64)
+    if len(f):  # a fold moving a border vertex moves the rim within the surface: by up to geom_error
+        _, bvert = _border_vertices(f, tree.n_vertices)
+        rim = tree.levels.reduce_up(_tree_nodes(tree, bvert.astype(np.uint8)), np.maximum).astype(bool)
+        out = np.where(rim, np.maximum(out, np.asarray(tree.geom_error, np.float64)), out)
     return np.where(out > 0, np.nextafter(out.astype(np.float32), np.float32(np.inf)), 0.0).astype(np.float32)
 
 
@@ -319,10 +324,52 @@ def _build_cull(tree):
     radius = np.nextafter(radius.astype(np.float32), np.float32(np.inf))
     left, cos_left = _post_fold_masks(tree, v, f)
     mask |= left
+    rim_mask, rim = _rim_columns(tree, v, f, fn)
+    mask |= rim_mask
     axis, half = normal_cones(tree)
     touch = np.maximum(half.astype(np.float64), np.arccos(np.clip(cos_left, -1.0, 1.0)))
+    touch[rim] = np.pi  # the rim is an outline from either side
     touch = np.minimum(touch * (1 + 1e-6) + 1e-6, np.pi).astype(np.float32)
     return np.ascontiguousarray(mask, "<u8").view(np.uint8).reshape(-1, 48), radius, touch
+
+
+def _border_vertices(f: np.ndarray, n_vertices: int):
+    """(border faces (T,) bool: faces with an edge no other face shares, border vertices (V,) bool:
+    the ends of such edges)."""
+    T = len(f)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, inv, cnt = np.unique(edges[:, 0] * n_vertices + edges[:, 1], return_inverse=True, return_counts=True)
+    single = (cnt[inv.ravel()] == 1)
+    face = single.reshape(3, T).any(0)
+    vert = np.zeros(n_vertices, bool)
+    vert[edges[single].ravel()] = True
+    return face, vert
+
+
+def _rim_columns(tree, v, f, fn):
+    """((N, 6) uint64 normal-cube bits, (N,) bool) for folds that move a vertex of the mesh's border (an
+    edge with one face: the rim of a hole or of an open sheet). With back faces culled, the rim is
+    an outline against what lies behind it from *every* side it is seen, although its faces all face
+    one way: it is the edge of a two-sided sheet of zero thickness. Such a node's mask gets the
+    opposite normals of its border faces and its cone becomes a half-space, so it is scored as a
+    silhouette wherever its faces can face the viewer (and is no longer culled where they cannot:
+    conservative); its band (:func:`slab_half_width`) covers the rim's move within the surface."""
+    V = len(v)
+    bface, bvert = _border_vertices(f, V)
+    out = np.zeros((V, 6), np.uint64)
+    if bface.any():
+        fb = np.flatnonzero(bface)
+        cell = normal_cells(-fn[fb])
+        bits = np.left_shift(np.uint64(1), (cell % 64).astype(np.uint64))
+        flat = out.reshape(-1)
+        for k in range(3):
+            on = bvert[f[fb, k]]
+            np.bitwise_or.at(flat, f[fb[on], k] * 6 + cell[on] // 64, bits[on])
+    lv = tree.levels
+    mask = lv.reduce_up(_tree_nodes(tree, out), np.bitwise_or)
+    rim = lv.reduce_up(_tree_nodes(tree, bvert.astype(np.uint8)), np.maximum).astype(bool)
+    rim[np.asarray(tree.child_count) == 0] = False
+    return mask, rim
 
 
 def _post_fold_masks(tree, v, f):
@@ -366,7 +413,8 @@ def _post_fold_masks(tree, v, f):
 
 def cull_columns(tree):
     """(normal mask (N, 48) uint8 over the faces of the 2-ring of each node's vertices and the faces
-    its fold leaves (:func:`_post_fold_masks`), frustum-test radius (N,) float32 object units, cone
+    its fold leaves (:func:`_post_fold_masks`), with the opposite normals of its border faces where
+    it moves a border vertex (:func:`_rim_columns`; its cone is then a half-space), frustum-test radius (N,) float32 object units, cone
     half-angle (N,) float32 rad about the :func:`normal_cones` axis holding the faces incident to the
     node's vertices and those its fold leaves): what a fold can touch, for the cull and silhouette
     tests. Cached."""

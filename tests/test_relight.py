@@ -32,11 +32,50 @@ def test_flat_evenly_lit_region_has_no_relit_contrast():
     view = optim.View.framing(v, 30.0, direction=(0.1, 0.2, 1.0), lighting=optim.Lighting((0.3, -0.2, 1.0)))
     nt = optim.node_terms(tree, view)
     assert np.abs(nt.contrast[~nt.silhouette]).max() < 1e-5
-    # the only silhouettes of a plane seen from the front are folds that turn a face over
-    sil = np.flatnonzero(nt.silhouette)
-    assert len(sil) < 0.2 * (tree.child_count > 0).sum()
+    # the only silhouettes of a plane seen from the front are folds that move its border (an outline
+    # against the background) or turn a face over
+    rim = _rim_nodes(tree)
+    sil = np.flatnonzero(nt.silhouette & ~rim)
+    assert len(sil) < 0.2 * ((tree.child_count > 0) & ~rim).sum()
     for node in sil:
         assert _fold_turns_a_face_over(tree, node), node
+    assert nt.silhouette[rim & ~nt.culled].all()
+
+
+def _rim_nodes(tree):
+    """Internal nodes supporting a vertex of a border edge (an edge of one face), by brute force."""
+    edges = {}
+    for face in tree.faces:
+        for a, b in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
+            key = (min(a, b), max(a, b))
+            edges[key] = edges.get(key, 0) + 1
+    border = np.zeros(tree.n_vertices, bool)
+    for (a, b), n in edges.items():
+        if n == 1:
+            border[[a, b]] = True
+    return np.array([tree.child_count[n] > 0 and border[supported(tree, n)].any() for n in range(tree.n_nodes)])
+
+
+def test_a_fold_that_moves_the_border_is_an_outline():
+    # An open sheet's border is an outline against the background from every side it is seen: a fold
+    # moving a border vertex is a silhouette wherever the sheet faces the viewer, with a band that
+    # covers the rim's move within the sheet (geom_error); a closed mesh has no such folds.
+    v, f = optim.grid_mesh(12, 12, (2.0, 2.0))
+    v = v - np.array([1.0, 1.0, 0.0])
+    tree = optim.build_tree(v, f)
+    rim = _rim_nodes(tree)
+    assert rim.any() and not rim[tree.child_count == 0].any()
+    view = optim.View.framing(v, 30.0, direction=(0.1, 0.2, 1.0), gaze=None)
+    nt = optim.node_terms(tree, view)
+    assert nt.silhouette[rim].all() and not nt.culled[rim].any()
+    assert nt.contrast[rim].min() > 0.9  # against the black background
+    slab = optim.slab_half_width(tree)
+    assert (slab[rim] >= tree.geom_error[rim]).all()
+    # seen from behind (back faces culled), the border folds are not culled either: conservative
+    behind = optim.node_terms(tree, optim.View.framing(v, 30.0, direction=(0.1, 0.2, -1.0), gaze=None))
+    assert not behind.culled[rim].any()
+    closed = optim.build_tree(*optim.bumpy_sphere(2))
+    assert not _rim_nodes(closed).any()
 
 
 def _fold_turns_a_face_over(tree, node):
