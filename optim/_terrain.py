@@ -441,6 +441,19 @@ _VELOCITY_MIN = 0.02  # without periphery: a strip computes its corners' velocit
 _CONSTS: dict = {}
 
 
+def _arc_upper_deg(c: np.ndarray) -> np.ndarray:
+    """An upper bound (deg, float32) of the arc 2 asin(c / 2) between unit vectors whose chord is ``c``:
+    ``c + c^3 * _SERIES`` (rad) for chords up to ``_CHORD_MAX``, ``pi c / 2`` beyond."""
+    x = c * c
+    x *= np.float32(_SERIES)
+    x += np.float32(1.0)
+    x *= c
+    if c.max() > _CHORD_MAX:
+        np.copyto(x, c * np.float32(math.pi / 2), where=c > _CHORD_MAX)
+    x *= np.float32(180.0 / math.pi)
+    return x
+
+
 def _acuity_consts(xi):
     """ReddyAcuity's constants rounded to float32 as JAX evaluates them, as Python floats (cached):
     (xi, g_max, g_intercept, g_slope / ln 10, g_min, m_scale, m_rate)."""
@@ -603,26 +616,13 @@ def _strip_bounds(hf, eye, gw, criteria, motion, dt_s, l, i0, i1, j0, j1, cand):
     h_s *= f32(deg * 2.0 * (1.0 - _MU))
     np.divide(f32(1.0), h_s, out=h_s)  # inf where x_lo = 0
     c += f32(_EPS_CHORD)
-    x_hi = c * c
-    x_hi *= f32(_SERIES)
-    x_hi += f32(1.0)
-    x_hi *= c
-    if c.max() > _CHORD_MAX:
-        np.copyto(x_hi, c * f32(math.pi / 2), where=c > _CHORD_MAX)
-    x_hi *= deg
+    x_hi = _arc_upper_deg(c)
     h_n = np.divide(f32(0.5 / (1.0 + _MU)), x_hi)
     if criteria.periphery:  # the longest edge's angle (deg), bounded above like x_hi
         np.sqrt(em, out=em)
         em += f32(_EPS_CHORD)
         np.minimum(em, c, out=em)
-        w = em * em
-        w *= f32(_SERIES)
-        w += f32(1.0)
-        w *= em
-        if em.max() > _CHORD_MAX:
-            np.copyto(w, em * f32(math.pi / 2), where=em > _CHORD_MAX)
-        w *= deg
-        em = w
+        em = _arc_upper_deg(em)
     kmax = far = None
     if criteria.periphery:
         k = U[0] * f32(gw[0])
