@@ -210,6 +210,77 @@ def _face_luminance_slope(tree):
     return out
 
 
+def _affine_bound(tree):
+    """(N,) float64: a bound on the change of relative luminance a fold makes in the triangles it
+    changes, from the node's affine reference field ``L`` (per colour channel, least squares over
+    the corners of those triangles, in object space): before the fold each such triangle's colour
+    minus ``L`` is affine, so at most ``E`` (the largest deviation of a corner from ``L``) inside it;
+    after it each new triangle's colour minus ``L`` is at most ``max(P, E)`` (``P`` = the proxy colour's
+    deviation from ``L`` at the proxy). So a pixel changes by at most ``E + max(P, E)`` per channel, plus
+    ``L``'s change along the view ray between the old and the new surface (neglected, as in
+    :func:`region_columns`); in luminance through the sRGB EOTF's largest slope over the region. An
+    evenly graded region folded to its mean colour near its centroid scores about 0 (the tree's
+    ``fold_delta`` scores its whole grade). Without colours the per-vertex pre-lit intensities are
+    the one channel."""
+    v = np.asarray(tree.vertices, np.float64)
+    f = np.asarray(tree.faces, np.int64)
+    N = tree.n_nodes
+    internal = np.asarray(tree.child_count) > 0
+    out = np.zeros(N)
+    if not len(f):
+        return out
+    if tree.colors is not None:
+        col = np.clip(np.asarray(tree.colors, np.float64), 0.0, 1.0)
+        col_p = np.asarray(tree.color, np.float64)
+    else:
+        col = np.asarray(tree.lum, np.float64)[np.asarray(tree.vertex_node, np.int64)][:, None]
+        col_p = np.asarray(tree.lum, np.float64)[:, None]
+    K = col.shape[1]
+    # moments of the corners (1, x, x x^T, c, x c) summed per face
+    vm = np.concatenate([np.ones((len(v), 1)), v, (v[:, :, None] * v[:, None, :]).reshape(-1, 9), col,
+                         (v[:, :, None] * col[:, None, :]).reshape(-1, 3 * K)], axis=1)
+    fm = vm[f[:, 0]] + vm[f[:, 1]] + vm[f[:, 2]]
+    # each node's incident corners are one run once corners are sorted by depth-first vertex position
+    dfpos = _depth_first_position(tree)
+    cv = dfpos[f.ravel()]
+    srt = np.argsort(cv, kind="stable")
+    cface = np.repeat(np.arange(len(f)), 3)[srt]
+    cstart = np.searchsorted(cv[srt], np.arange(len(v) + 1))
+    lo_all = cstart[np.asarray(tree.leaf_lo, np.int64)]
+    count = cstart[np.asarray(tree.leaf_hi, np.int64)] - lo_all
+    mom = np.zeros((N, fm.shape[1]))
+    runs = list(level_runs(tree.levels.start, lo_all, count, internal))
+    for nodes, idx, off in runs:
+        mom[nodes] = np.add.reduceat(fm[cface[idx]], off, axis=0)
+    n = np.maximum(mom[:, :1], 1.0)
+    mu = mom[:, 1:4] / n
+    cov_x = mom[:, 4:13].reshape(-1, 3, 3) / n[:, :, None] - mu[:, :, None] * mu[:, None, :]
+    cbar = mom[:, 13:13 + K] / n
+    cov_xc = mom[:, 13 + K:].reshape(-1, 3, K) / n[:, :, None] - mu[:, :, None] * cbar[:, None, :]
+    grad = np.linalg.pinv(cov_x, rcond=1e-6, hermitian=True) @ cov_xc  # any affine L gives a bound
+    dev = np.zeros((N, K))
+    top = np.zeros((N, K))
+    for nodes, idx, off in runs:
+        fc = f[cface[idx]]
+        nd = np.repeat(nodes, count[nodes])
+        d = np.zeros((len(idx), K))
+        for j in range(3):
+            x = v[fc[:, j]] - mu[nd]
+            d = np.maximum(d, np.abs(col[fc[:, j]] - cbar[nd] - np.einsum("ri,rik->rk", x, grad[nd])))
+        dev[nodes] = np.maximum.reduceat(d, off, axis=0)
+        top[nodes] = np.maximum.reduceat(col[fc].max(1), off, axis=0)
+    prox = np.abs(col_p - cbar - np.einsum("ni,nik->nk", np.asarray(tree.position, np.float64) - mu, grad))
+    bound = dev + np.maximum(prox, dev)
+    if tree.colors is not None:
+        top = np.maximum(top, col_p)
+        slope = np.maximum(1 / 12.92, 2.4 / 1.055 * ((top + 0.055) / 1.055) ** 1.4)  # the EOTF's slope at the top
+        out = (np.array([0.2126, 0.7152, 0.0722]) * slope * bound).sum(1)
+    else:
+        out = bound[:, 0]
+    out[~internal] = 0.0
+    return out
+
+
 def region_columns(tree) -> dict:
     """The luminance columns of ``tree`` as a renderer shows its vertex colours (or pre-lit
     intensities) without relighting (the seeds' baked case): ``lum`` (proxy), ``lum_min``, ``lum_max``
@@ -229,10 +300,13 @@ def region_columns(tree) -> dict:
       (:func:`_face_luminance_slope`);
 
     and at most the whole range of their corners and the proxy (before and after a fold every such
-    pixel interpolates them). So ``fold_delta = min(hi - lo, tree.fold_delta + G geom_error)`` with
-    ``lo``, ``hi`` the range over the closed 1-ring and the proxy, which are also ``lum_min`` and
-    ``lum_max`` (the darkest value such a pixel can have is the base of the Michelson contrast).
-    Cached."""
+    pixel interpolates them), and at most the bound from an affine reference field
+    (:func:`_affine_bound`: tight where the colours are evenly graded, where the first bound adds a
+    grade's two parts that cancel). So ``fold_delta = min(hi - lo, tree.fold_delta + G geom_error,
+    affine bound)`` with ``lo``, ``hi`` the range over the closed 1-ring and the proxy, which are also
+    ``lum_min`` and ``lum_max`` (the darkest value such a pixel can have is the base of the Michelson
+    contrast). Not covered: the change of depth along a view ray between the old and the new surface
+    point seen at one pixel. Cached."""
 
     def build():
         lo, hi = _region_range(tree)
@@ -247,7 +321,7 @@ def region_columns(tree) -> dict:
         slope = tree.levels.reduce_up(_tree_nodes(tree, slope_v), np.maximum)
         err = np.asarray(tree.geom_error, np.float64)
         move = np.where(err > 0, slope * np.where(err > 0, err, 1.0), 0.0)  # inf slope x 0 distance: none
-        delta = np.minimum(hi - lo, np.asarray(tree.fold_delta, np.float64) + move)
+        delta = np.minimum(np.minimum(hi - lo, np.asarray(tree.fold_delta, np.float64) + move), _affine_bound(tree))
         delta[np.asarray(tree.child_count) == 0] = 0.0
         f32 = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
         return dict(lum=f32(proxy), lum_min=f32(lo), lum_max=f32(hi), fold_delta=f32(delta))
