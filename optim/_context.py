@@ -209,16 +209,18 @@ def _scene_lum(lum_min, lum_max) -> tuple:
 
 
 def _build(tree) -> ScoringContext:
+    """The context of ``tree``; for an :class:`optim.VertexTree` its geometry only (luminance columns 0:
+    :func:`_with_columns` puts in those of the lighting)."""
     n = _check_tree(tree)
     node, levels = _internal_levels(tree, n)
     center = np.asarray(tree.center, np.float32)[node]
     if isinstance(tree, VertexTree):  # what a fold can touch (culled folds are not free)
-        from ._relight import cull_columns, normal_cones, region_columns, slab_half_width
+        from ._relight import cull_columns, normal_cones, slab_half_width
 
         mask, cull_radius, half = cull_columns(tree)
         axis = normal_cones(tree)[0]
         slab = slab_half_width(tree)
-        lum = region_columns(tree)  # what the triangles a fold changes show (their corners' colours)
+        lum = dict.fromkeys(("lum_min", "lum_max", "fold_delta"), np.zeros(n, np.float32))
     else:  # a bare tree-like object: its own masks and spheres; vertex displacement as the slab; no cone
         mask, cull_radius, slab = tree.normal_mask, tree.radius, tree.geom_error
         axis, half = np.zeros((n, 3), np.float32), np.full(n, np.pi, np.float32)
@@ -235,12 +237,10 @@ def _build(tree) -> ScoringContext:
     return ScoringContext(chunks, tuple(_host_masks(ch) for ch in chunks), sizes, levels, node, n, scene)
 
 
-def _relit(tree, base: ScoringContext, lighting) -> ScoringContext:
-    """``base`` with the luminance columns of :func:`optim._relight.relit_columns` (same shapes: the
-    per-view programs are not recompiled)."""
-    from ._relight import relit_columns
-
-    cols = relit_columns(tree, lighting)
+def _with_columns(base: ScoringContext, cols: dict) -> ScoringContext:
+    """``base`` with the luminance columns ``cols`` (``lum_min``, ``lum_max``, ``fold_delta`` (N,)
+    float32; same shapes: the per-view programs are not recompiled)."""
+    cols = {k: np.asarray(cols[k], np.float32) for k in ("lum_min", "lum_max", "fold_delta")}
     chunks, a = [], 0
     for ch, n in zip(base.chunks, base.sizes):
         sl = base.node[a:a + n]
@@ -263,9 +263,10 @@ def scoring_context(tree, lighting=None) -> ScoringContext:
         if lighting is not None:
             raise PlodError("score: relit scoring (View.lighting) needs an optim.VertexTree")
         return _build(tree)
-    base = tree.derived("scoring_context", lambda: _build(tree))
-    if lighting is None:
-        return base
-    from ._relight import light_key
+    from ._relight import light_key, region_columns, relit_columns
 
-    return tree.derived(f"scoring_context.relit.{light_key(lighting)}", lambda: _relit(tree, base, lighting))
+    base = tree.derived("scoring_context.geometry", lambda: _build(tree))  # shared by every lighting
+    if lighting is None:  # what the triangles a fold changes show (their corners' colours)
+        return tree.derived("scoring_context", lambda: _with_columns(base, region_columns(tree)))
+    return tree.derived(f"scoring_context.relit.{light_key(lighting)}",
+                        lambda: _with_columns(base, relit_columns(tree, lighting)))

@@ -102,7 +102,8 @@ def main():
           f"{a.rounds} rounds, alternated; load average {load[0]:.1f} / {load[1]:.1f} at the end; "
           f"identical keys and meshes: {same}")
     for k in ("old", "new"):
-        print(f"  {k}: update {np.median(wall[k]):.1f} ms median (min {wall[k].min():.1f}), CPU {np.median(cpu[k]):.1f} ms")
+        print(f"  {k}: update {np.median(wall[k]):.1f} ms median (min {wall[k].min():.1f}), "
+              f"CPU {np.median(cpu[k]):.1f} ms")
     print(f"  ratio old / new: wall median {np.median(wall['old']) / np.median(wall['new']):.2f}x, paired median "
           f"{np.median(wall['old'] / wall['new']):.2f}x, min {wall['old'].min() / wall['new'].min():.2f}x; "
           f"CPU median {np.median(cpu['old']) / np.median(cpu['new']):.2f}x")
