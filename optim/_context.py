@@ -26,7 +26,7 @@ __all__ = ["ScoringContext", "scoring_context"]
 
 #: internal nodes per chunk of the per-view programs (1 MiB float32 columns)
 _CHUNK = 262144
-#: child-group sizes up to this use fixed-arity gathers in the max propagation (else reduceat)
+#: child slots gathered per level in the max propagation; children beyond them go to reduceat (Levels._slots)
 _MAX_ARITY = 8
 #: chunk lengths are padded to a multiple of this many nodes (vectorised XLA loops)
 _PAD = 1024
