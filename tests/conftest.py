@@ -103,7 +103,8 @@ SLOW_TESTS = frozenset({
     "tests/test_experiment.py::test_small_config_end_to_end",
     # 2026-12-03 (late): ``make test`` measured 9:53 on a fresh clone, 12:15 under load; the four heaviest
     # left (77, 35, 29, 19 s of one worker under -n 2), each with a sibling in the fast tier (stelaCSF's
-    # domain gradients, the MCMC lower-quantile check, the solver-structure check, reddy_st's closed form)
+    # domain gradients, the MCMC lower-quantile check, the solver-structure check, the closed forms of
+    # manos, kelly_abstract and eccentric_cubic)
     "tests/test_stela.py::test_fast_distance_gradients_match_finite_differences",
     "tests/test_mcmc.py::test_true_constants_inside_95_interval_in_18_of_20_runs",
     "tests/test_stela.py::test_fast_is_perceptible_traced_constants_use_generic_path",
