@@ -376,10 +376,11 @@ def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
     X, Y, Z = c * hf.spacing, hf.heights[r, c], r * hf.spacing
     U = _dirs(X, Y, Z, np.asarray(camera.eye, float), R)
     C = [u[inv] for u in U]  # (4, K) each: the corners' directions
-    edge = C[0] * np.roll(C[0], -1, 0)  # corners k, k + 1: the four edges
+    nxt = [1, 2, 3, 0]  # corner k + 1 (cheaper than np.roll)
+    edge = C[0] * C[0][nxt]  # corners k, k + 1: the four edges
     diag = C[0][:2] * C[0][2:]  # corners 0-2, 1-3: the diagonals
     for Ck in C[1:]:
-        edge += Ck * np.roll(Ck, -1, 0)
+        edge += Ck * Ck[nxt]
         diag += Ck[:2] * Ck[2:]
     ext = _acos_deg(np.minimum(edge.min(0), diag.min(0)))
     k = inv.shape[1]
@@ -402,7 +403,7 @@ def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
 
     def edges(sel):  # (4 len(sel), 3) each: the selected squares' edges i (corner i to i + 1), edge by edge
         S = np.stack([Ck[:, sel] for Ck in C], -1)  # (4, len(sel), 3)
-        return S.reshape(-1, 3), np.roll(S, -1, 0).reshape(-1, 3)
+        return S.reshape(-1, 3), S[nxt].reshape(-1, 3)
 
     cand = np.flatnonzero(near <= ext * (1.0 + 1e-9) + 1e-12)
     if len(cand):
@@ -411,10 +412,12 @@ def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
         inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((Pc @ g).reshape(4, -1).T > 0).all(1)
         lo[cand[inside]] = 0.0
         hi[cand[inside]] = 0.0
-    sure = ext >= 1.0 / (2.0 * _acuity(criteria.xi, hi, v))  # perceptible even at the largest possible e
+    # H' at both ends of e in one call (each JAX call costs 0.1-0.2 ms, the arithmetic per square nothing)
+    h = _acuity(criteria.xi, np.concatenate([hi, lo]), np.concatenate([v, v]))
+    sure = ext >= 1.0 / (2.0 * h[:k])  # perceptible even at the largest possible e
     out = sure.copy()
     rest = np.flatnonzero(~sure)
-    amb = rest[ext[rest] >= 1.0 / (2.0 * _acuity(criteria.xi, lo[rest], v[rest]))]  # maybe, at the smallest e
+    amb = rest[ext[rest] >= 1.0 / (2.0 * h[k:][rest])]  # maybe, at the smallest e
     if len(amb):
         e = _arc_distance(g, *edges(amb)).reshape(4, -1).min(0)
         out[amb] = ext[amb] >= 1.0 / (2.0 * _acuity(criteria.xi, e, v[amb]))
@@ -762,11 +765,13 @@ def _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, g_s, g_n):
     cs, ss, cn, sn = np.cos(E_s), np.sin(E_s), np.cos(E_n), np.sin(E_n)
     half_s, half_n = E_s >= math.pi / 2, E_n >= math.pi / 2
     # the corners NW, NE, SE, SW (4, k) per component; edge i runs from corner i to corner i + 1
-    rr, cc = np.stack([ri, ri, ri + 1, ri + 1]), np.stack([ci, ci + 1, ci + 1, ci])
-    P = [u[rr, cc].astype(np.float64) for u in U]
-    Q = [np.roll(p, -1, 0) for p in P]
+    nc = U[0].shape[1]
+    lin = (ri * nc + ci) + np.array([0, 1, nc + 1, nc])[:, None]  # flat node ids (4, k)
+    nxt = [1, 2, 3, 0]  # corner i + 1 (np.roll costs more than the arithmetic here)
+    P = [u.ravel()[lin].astype(np.float64) for u in U]
+    Q = [p[nxt] for p in P]
     gP = g[0] * P[0] + g[1] * P[1] + g[2] * P[2]  # (4, k): the cosine to the gaze of each corner
-    gQ = np.roll(gP, -1, 0)
+    gQ = gP[nxt]
     pq = P[0] * Q[0] + P[1] * Q[1] + P[2] * Q[2]
     n0, n1, n2 = P[1] * Q[2] - P[2] * Q[1], P[2] * Q[0] - P[0] * Q[2], P[0] * Q[1] - P[1] * Q[0]
     nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
@@ -897,10 +902,10 @@ def _size_small(hf, camera, R, g, criteria, moves, dt_s, levels):
     return maps
 
 
-def _size_test(hf, camera, R, g, criteria, moves, dt_s, l, ok):
+def _size_test(hf, camera, R, g, criteria, moves, dt_s, l, ok, motion=None):
     """Clear in place the squares of the level-l candidate map ``ok`` (2^l, 2^l) bool that fail the size
     test ``s >= 1 / (2 H'(v, e))``; ``moves``: the previous cameras as (eye (3,), rotation (3, 3)), most
-    recent first.
+    recent first; ``motion``: :func:`_motion` of them (the frame's, made once; None: made here).
 
     The answer is :func:`_perceptible_exact`'s (the float64 arithmetic) square for square: levels with at
     least ``_BOUND_MIN`` candidates first take the float32 bound pass (:func:`_strip_bounds`, strips of
@@ -917,7 +922,8 @@ def _size_test(hf, camera, R, g, criteria, moves, dt_s, l, ok):
             ok.flat[t] = _perceptible_exact(hf, camera, R, g, criteria, moves, dt_s, l, t >> l, t & (m - 1))
         return
     eye = np.asarray(camera.eye, float)
-    motion = _motion(eye, R, moves, dt_s)
+    if motion is None:
+        motion = _motion(eye, R, moves, dt_s)
     gw = R.T @ g
     rows = max(1, _STRIP_NODES // (m + 1))
     used = np.flatnonzero(ok.any(1))
@@ -966,6 +972,7 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     g = camera.gaze()
     split, culled = [], [None] * (L + 1)
     small_levels = min(L - 1, _SMALL_LEVELS)  # levels whose size test is one batched float64 call
+    motion = _motion(np.asarray(camera.eye, float), R, moves, dt_s) if criteria.size else None
     cand = np.ones((1, 1), bool)  # the squares whose parent is split (dense per level); the root
     for l in range(L):
         m = 2 ** l
@@ -985,7 +992,7 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
                     small = _size_small(hf, camera, R, g, criteria, moves, dt_s, small_levels)
                 ok &= small[l]
             else:
-                _size_test(hf, camera, R, g, criteria, moves, dt_s, l, ok)
+                _size_test(hf, camera, R, g, criteria, moves, dt_s, l, ok, motion)
         split.append(ok)
         cand = _up(ok)
     _restrict(split)
