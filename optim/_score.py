@@ -23,10 +23,11 @@ have nothing to fold and get 0): ``classify`` -> ``terms`` -> ``key`` -> ``propa
 
 The stages run as several XLA programs rather than one: fused together, XLA:CPU recomputes shared
 per-node arithmetic inside scalar gather loops. Table mode (perceptual keys without motion, the
-default) runs one XLA program per chunk without gathers (:func:`_table_inputs`: table-word positions,
-the key-table index of the own contrast, the silhouette contrast, theta, the band, frustum cull) and
-does the gathers in numpy (:func:`_table_keys_host`): XLA:CPU fuses index arithmetic into gather loops
-as scalar code. The silhouette nodes' table indices come from one more XLA program over those nodes
+default) on a CPU backend with few cores (:func:`_host_gathers`) runs one XLA program per chunk without
+gathers (:func:`_table_inputs`: table-word positions, the key-table index of the own contrast, the
+silhouette contrast, theta, the band, frustum cull) and does the gathers in numpy
+(:func:`_table_keys_host`): XLA:CPU fuses index arithmetic into gather loops as scalar code; on a GPU
+or four or more cores the XLA programs with their gathers are faster and run instead (same keys). The silhouette nodes' table indices come from one more XLA program over those nodes
 alone (:func:`_silhouette_indices`, about a fifth of the nodes). All chunks are dispatched before any
 result is read, with ``jax.jit`` (asynchronous; ``eqx.filter_jit`` blocks on each call's result), so
 numpy's work on one chunk overlaps XLA's on the next. Speed: see ``reports/bench_optim.md``.
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -501,12 +503,36 @@ def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
     return key, culled
 
 
-def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=True):
+#: fewer usable cores than this: table mode gathers in numpy on the CPU backend (:func:`_host_gathers`)
+HOST_GATHER_MAX_CORES = 3
+
+
+def _usable_cores() -> int:
+    """The cores this process may run on (its affinity mask, where the platform has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _host_gathers() -> bool:
+    """Whether table mode does its gathers in numpy (:func:`_table_keys_host`) rather than in its XLA
+    programs: only on the CPU backend with at most :data:`HOST_GATHER_MAX_CORES` usable cores, where
+    XLA:CPU's scalar gather loops lose to numpy. Measured with ``reports/scripts/ab_score_gathers.py``
+    (1M-triangle torus, static views, same keys either way): numpy gathers 0.86x the XLA programs' time on
+    2 cores; XLA 1.36x / 1.69x / 1.81x faster on 4 / 8 / 16 cores of a 16-core machine and 2.88x on its
+    H200 GPU (reports/bench_optim_device.md)."""
+    return jax.default_backend() == "cpu" and _usable_cores() <= HOST_GATHER_MAX_CORES
+
+
+def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=None):
     """``classify``, ``terms`` and ``key`` of every internal node: raw key (M,) float32 and cull flag
     (M,), chunk by chunk (all chunks dispatched before any result is read). ``ktab``: the model's
     :class:`_KeyTable` for table mode, else None; ``fast``: table mode through
-    :func:`_table_keys_host` (same values as the XLA programs)."""
+    :func:`_table_keys_host` (same values as the XLA programs); None: :func:`_host_gathers`."""
     table_mode = metric == "perceptual" and ktab is not None
+    if fast is None:
+        fast = _host_gathers()
     if table_mode and fast and not has_motion:
         return _table_keys_host(ctx, vp, ktab, has_gaze)
     table = table_device()

@@ -313,6 +313,29 @@ def test_fast_table_path_equals_xla_path(sphere_tree, gaze):
         assert np.array_equal(fast[0], slow[0]) and np.array_equal(fast[1], slow[1])
 
 
+def test_gather_path_follows_backend_and_cores(monkeypatch):
+    """Numpy gathers only on the CPU backend with few usable cores; the XLA programs on a GPU or four+
+    cores (reports/bench_optim_device.md); score's default follows it."""
+    from optim import _score as S
+
+    for backend, cores, host in (("cpu", 1, True), ("cpu", 2, True), ("cpu", 3, True), ("cpu", 4, False),
+                                 ("cpu", 16, False), ("gpu", 2, False), ("gpu", 16, False)):
+        monkeypatch.setattr(S.jax, "default_backend", lambda b=backend: b)
+        monkeypatch.setattr(S, "_usable_cores", lambda c=cores: c)
+        assert S._host_gathers() is host, (backend, cores)
+    class HostPath(Exception):
+        pass
+
+    def host_path(*args):
+        raise HostPath
+
+    monkeypatch.setattr(S, "_table_keys_host", host_path)
+    monkeypatch.setattr(S.jax, "default_backend", lambda: "cpu")
+    monkeypatch.setattr(S, "_usable_cores", lambda: 2)
+    with pytest.raises(HostPath):
+        S._raw_keys(None, None, None, object(), "perceptual", False, False)
+
+
 def test_monotone_gathers_equal_reduceat(sphere_tree):
     lv = optim.scoring_context(sphere_tree).levels
     rng = np.random.default_rng(0)
