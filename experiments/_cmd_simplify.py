@@ -3,8 +3,8 @@
 Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (built once and cached
 by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``; an empty ``PLOD_CACHE``: no cache) -> view
 (default: the object subtends about 30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node
-keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut``) ->
-``optim.extract`` -> write ``--out`` atomically (never over the input; every output path is checked
+keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut``; with
+``--cull-back-faces`` ``optim.visible_budget_cut``) -> ``optim.extract`` (and ``optim.drop_back_faces``) -> write ``--out`` atomically (never over the input; every output path is checked
 by ``experiments._paths.check_output`` before any work).
 
 A mesh of extreme size (bounding-box diagonal outside 1e-6 .. 1e6 object units) is scaled by an exact
@@ -70,6 +70,11 @@ def register(sub) -> None:
     p.add_argument("--no-cache", action="store_true",
                    help="do not read or write the tree cache (kept in $PLOD_CACHE, default ~/.cache/plod; "
                         "PLOD_CACHE set to an empty string also means no cache)")
+    p.add_argument("--cull-back-faces", metavar="MARGIN_DEG", nargs="?", const="0", default=None,
+                   help="drop the triangles facing away from the eye by more than MARGIN_DEG (default 0: "
+                        "exactly those a back-face-culling renderer skips; a margin keeps them for a moving "
+                        "eye) and count --budget in front-facing triangles; the output carries the whole "
+                        "cut's vertex normals (PLY, OBJ, GLB), which the renderer should shade from")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
     p.add_argument("--render", metavar="OUT.png", default=None,
                    help="render original and simplified for this view, with their FLIP difference, to a PNG")
@@ -341,6 +346,7 @@ def simplify(args) -> dict:
     if not mesh_path.is_file():
         raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
     _check_view_flags(args)
+    margin = _number("--cull-back-faces", args.cull_back_faces, hi=90.0, strict=False)  # deg, or None
     t = {}
     t0 = time.perf_counter()
     tree, cache, t["load"], unit_exp = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
@@ -352,16 +358,28 @@ def simplify(args) -> dict:
         check_writable(out, np.ldexp(tree.vertices, -unit_exp) if unit_exp else tree.vertices)
     view = build_view(tree.vertices, args, unit_exp)
     keys = _timed(t, "score", optim.score, tree, view, model, args.metric)
-    cut = _timed(t, "cut", _cut, tree, keys, args, budget)
+    n2 = None
+    if margin is not None and budget is not None:
+        vc = _timed(t, "cut", optim.visible_budget_cut, tree, keys, budget, view, margin_deg=margin, monotone="trust")
+        cut = vc.cut
+    else:
+        cut = _timed(t, "cut", _cut, tree, keys, args, budget)
     if budget is not None and cut.triangles == 0:
         raise PlodError(f"--budget {budget} is below the smallest non-empty cut for this view "
                         f"({optim.min_nonempty_budget(tree, keys, monotone='trust')} triangles)")
-    v2, f2, c2 = _timed(t, "extract", optim.extract, tree, cut)
+    if margin is not None and budget is not None:
+        v2, f2, c2, n2 = vc.mesh
+    else:
+        v2, f2, c2 = _timed(t, "extract", optim.extract, tree, cut)
+        if margin is not None:
+            v2, f2, c2, n2 = _timed(t, "cull", optim.drop_back_faces, (v2, f2, c2), view, margin)
+    if len(f2) == 0:
+        raise PlodError("every triangle of the cut faces away from the eye: nothing to write (check --eye)")
     if unit_exp:
         v2 = np.ldexp(np.asarray(v2, np.float64), -unit_exp)  # back to the file's units, exactly
     flips = optim.cut_flips(tree, cut)
     if out is not None:
-        _timed(t, "save", optim.save_mesh, out, v2, f2, c2, protect=(mesh_path,))
+        _timed(t, "save", optim.save_mesh, out, v2, f2, c2, protect=(mesh_path,), normals=n2)
     perceptual = args.metric == "perceptual"
     # Whatever keys chose the cut, report the perceptual distance beyond which it is imperceptible
     # [LH01 §5.3]: the largest perceptual key among folded nodes (keys are monotone).
@@ -370,12 +388,14 @@ def simplify(args) -> dict:
     distance = float(pkeys[folded].max()) if folded.any() else 0.0
     rendered = None
     if render_path is not None:
-        rendered = _timed(t, "render", _render, render_path, render_size, tree, (v2, f2, c2), view, args,
-                          distance, mesh_path)
+        rendered = _timed(t, "render", _render, render_path, render_size, tree,
+                          (v2, f2, c2) if n2 is None else (v2, f2, c2, n2), view, args, distance, mesh_path)
     return {
         "mesh": str(mesh_path),
         "input_triangles": int(tree.n_triangles),
         "output_triangles": int(f2.shape[0]),
+        "cut_triangles": int(cut.triangles),  # with --cull-back-faces: before the back faces were dropped
+        "cull_back_faces_margin_deg": margin,
         "output_vertices": int(v2.shape[0]),
         "metric": args.metric,
         "model": type(model).__name__,

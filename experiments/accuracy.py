@@ -62,6 +62,13 @@ DEFAULTS = {
     "models": ["kellyabstract", "reports/fit_real/fitted_stelacsf.json", "reports/fit_real/fitted_barten.json"],
     "size": [960, 540],
     "worst": 3,
+    # plod's cuts without the triangles that face away from the eye (optim.drop_back_faces, keeping the
+    # full cut's normals), budgets counted in front-facing triangles (optim.visible_budget_cut); the peers
+    # stay whole meshes at plod's (front-facing) triangle count
+    "face_cull": False,
+    "face_cull_margin_deg": 0.0,
+    # the imperceptible cuts of the code before lights in the model (default: OUT/before/results.jsonl)
+    "before": "",
 }
 QUICK = {"meshes": [], "procedural": ["sphere:4:11"], "views": 1, "gaze_offsets_deg": [0.0],
          "budgets": [0.08], "models": [], "size": [480, 270], "worst": 1, "out": "reports/accuracy/quick"}
@@ -167,29 +174,43 @@ def cell_results(mesh: _Mesh, direction, gaze_deg, lighting, cfg, models, model_
         if keep is not None and (method, budget) in keep:
             kept[(method, budget)] = result
 
+    cull, margin = bool(cfg.get("face_cull")), float(cfg.get("face_cull_margin_deg", 0.0))
+
+    def budget_mesh(keys, target):
+        """(mesh, triangles of the whole cut) of the budget cut of ``keys`` to ``target`` triangles."""
+        if cull:
+            vc = optim.visible_budget_cut(tree, keys, target, view, margin_deg=margin, monotone="trust")
+            return vc.mesh, vc.cut.triangles
+        c = optim.budget_cut(tree, keys, target, monotone="trust")
+        return optim.extract(tree, c), c.triangles
+
     t0 = time.perf_counter()
     keys = optim.score(tree, view)
     cut = optim.threshold_cut(tree, keys, 1.0, monotone="trust")
     result = optim.extract(tree, cut)
-    judged("imperceptible", None, result, 1e3 * (time.perf_counter() - t0), distance=float(cut.distance))
+    if cull:
+        result = optim.drop_back_faces(result, view, margin)
+    judged("imperceptible", None, result, 1e3 * (time.perf_counter() - t0), distance=float(cut.distance),
+           cut_triangles=int(cut.triangles))
     T = tree.n_triangles
     for b in cfg["budgets"]:
         t0 = time.perf_counter()
         pk = optim.score(tree, view)
-        pcut = optim.budget_cut(tree, pk, max(int(b * T), 1), monotone="trust")
-        presult = optim.extract(tree, pcut)
+        presult, pcut_t = budget_mesh(pk, max(int(b * T), 1))
         ms = 1e3 * (time.perf_counter() - t0)
-        judged("perceptual", b, presult, ms)
+        judged("perceptual", b, presult, ms, cut_triangles=pcut_t)
         target = len(presult[1])
         for metric in ("size", "geometric"):
             k = optim.score(tree, view, None, metric)
-            judged(metric, b, optim.extract(tree, optim.budget_cut(tree, k, target, monotone="trust")))
+            m, ct = budget_mesh(k, target)
+            judged(metric, b, m, cut_triangles=ct)
         for peer in PEERS:
             judged(peer, b, mesh.peer(peer, lighting, target))
         if b == cfg["model_budget"]:
             for name, model in models.items():
                 k = optim.score(tree, view, model)
-                judged(f"model:{name}", b, optim.extract(tree, optim.budget_cut(tree, k, target, monotone="trust")))
+                m, ct = budget_mesh(k, target)
+                judged(f"model:{name}", b, m, cut_triangles=ct)
     return (rows, kept) if keep is not None else rows
 
 
@@ -312,6 +333,13 @@ def write_report(rows, cfg, command, out, images=()):
          f"mesh (seed {cfg['seed']}), object {cfg['object_deg']:g} deg, gaze offsets "
          f"{', '.join(f'{g:g}' for g in cfg['gaze_offsets_deg'])} deg from its centre, gaze error "
          f"{cfg['gaze_error_deg']:g} deg. None of these meshes or views is used by the tests.\n"]
+    if cfg.get("face_cull"):
+        L.append(f"**Face culling on**: plod's cuts (imperceptible, perceptual, size, geometric, models) are drawn "
+                 f"without the triangles that face away from the eye by more than {cfg['face_cull_margin_deg']:g} deg "
+                 "(`optim.drop_back_faces`, shading from the whole cut's normals, so the view's image is the whole "
+                 "cut's), and budgets count front-facing triangles (`optim.visible_budget_cut`). The peers are whole "
+                 "meshes at plod's front-facing triangle count. *triangles* columns count drawn triangles; "
+                 "`results.jsonl` has each cut's whole count as `cut_triangles`.\n")
     errors = [r for r in rows if r["method"] == "error"]
     if errors:
         L.append(f"**{len(errors)} cells failed**: " + "; ".join(f"{r['cell']}: {r['error']}" for r in errors[:5]) + "\n")
@@ -342,7 +370,7 @@ def write_report(rows, cfg, command, out, images=()):
 
         L.append(f"\n`perceptual` is the default model (`{pmetric.DEFAULT_MODEL}`, "
                  f"{type(pmetric.default_model()).__name__}); `model:NAME` the same cut with that model.\n")
-    before = _before_rows(out)
+    before = _before_rows(out, cfg.get("before", ""))
     if before:
         L += _before_table(rows, before)
     L.append("## Imperceptible cuts\n")
@@ -377,10 +405,10 @@ def write_report(rows, cfg, command, out, images=()):
     return summ
 
 
-def _before_rows(out: Path) -> dict:
-    """{cell: imperceptible row} of ``out/before/results.jsonl`` (the same cells judged with the code
-    before lights in the model), or {} when absent."""
-    path = out / "before" / "results.jsonl"
+def _before_rows(out: Path, before: str = "") -> dict:
+    """{cell: imperceptible row} of ``out/before/results.jsonl`` (or ``before/results.jsonl``: the same
+    cells judged with the code before lights in the model), or {} when absent."""
+    path = out / "before" / "results.jsonl" if not before else repo_path(before) / "results.jsonl"
     if not path.is_file():
         return {}
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
@@ -441,16 +469,23 @@ def worst_images(rows, cfg, out, model_lights=True):
         view = _view(mesh, d, r["gaze_deg"], lighting, cfg, model_lights)
         tree = mesh.tree[lighting]
         keys = optim.score(tree, view)
+        margin = float(cfg.get("face_cull_margin_deg", 0.0))
         if method == "imperceptible":
-            cut = optim.threshold_cut(tree, keys, 1.0, monotone="trust")
+            result = optim.extract(tree, optim.threshold_cut(tree, keys, 1.0, monotone="trust"))
+            if cfg.get("face_cull"):
+                result = optim.drop_back_faces(result, view, margin)
+        elif cfg.get("face_cull"):
+            result = optim.visible_budget_cut(tree, keys, max(int(b * tree.n_triangles), 1), view, margin_deg=margin,
+                                              monotone="trust").mesh
         else:
-            cut = optim.budget_cut(tree, keys, max(int(b * tree.n_triangles), 1), monotone="trust")
-        res = judge(mesh.original(lighting), optim.extract(tree, cut), view, mode=lighting,
+            result = optim.extract(tree, optim.budget_cut(tree, keys, max(int(b * tree.n_triangles), 1), monotone="trust"))
+        res = judge(mesh.original(lighting), result, view, mode=lighting,
                     lighting=optim.Lighting() if lighting == "relit" else None, size=tuple(cfg["size"]))
         name = f"worst_{method}_{k}.png"
+        nt = len(result[1])
         title = (f"{method} cut, {r['cell']}" + (f", budget {100 * b:g} % (best peer: {peer})" if b else "")
-                 + f": {cut.triangles:,} triangles, JOD {res.jod:.3f}")
-        save_judgement(out / name, res, titles=("original", f"{method}: {cut.triangles:,} triangles"))
+                 + f": {nt:,} triangles, JOD {res.jod:.3f}")
+        save_judgement(out / name, res, titles=("original", f"{method}: {nt:,} triangles"))
         images.append((title, name))
     return images
 

@@ -216,17 +216,20 @@ def fovvdp(reference: np.ndarray, test: np.ndarray, view, *, heatmap: bool = Tru
 
 # ----------------------------------------------------------------------------------------------- judge
 def _mesh(name: str, mesh):
+    """(vertices, faces, colors, normals or None) of a 3-tuple or a 4-tuple with vertex normals."""
     try:
-        v, f, c = mesh
+        n = len(mesh)
+        v, f, c, nrm = (*mesh, None) if n == 3 else mesh
     except (TypeError, ValueError):
-        raise PlodError(f"judge: {name} must be (vertices, faces, colors or None)") from None
-    return v, f, c
+        raise PlodError(f"judge: {name} must be (vertices, faces, colors or None[, normals])") from None
+    return v, f, c, nrm
 
 
 def judge(reference_mesh, test_mesh, view, *, mode: str = "relit", lighting=None, size=None,
           metrics=METRICS, heatmap: bool = True) -> JudgeResult:
-    """Render ``reference_mesh`` and ``test_mesh`` (each ``(vertices, faces, colors or None)``) for ``view``
-    and judge the test rendering against the reference.
+    """Render ``reference_mesh`` and ``test_mesh`` (each ``(vertices, faces, colors or None)``, or with
+    vertex normals (V, 3) as a fourth element for the relit pass) for ``view`` and judge the test
+    rendering against the reference.
 
     ``mode``: ``"relit"`` or ``"baked"`` (:func:`experiments.render.render`); ``lighting``: an
     ``optim.Lighting`` (None: its default). ``size`` (width, height) in pixels, default the view's image;
@@ -242,8 +245,10 @@ def judge(reference_mesh, test_mesh, view, *, mode: str = "relit", lighting=None
     if bad or not metrics:
         raise PlodError(f"judge: metrics must be a non-empty subset of {METRICS}, got {tuple(metrics)!r}")
     w, h = rendering_size(view, size)
-    ref = R.render(*_mesh("reference_mesh", reference_mesh), view, lighting=lighting, mode=mode, size=(w, h))
-    tst = R.render(*_mesh("test_mesh", test_mesh), view, lighting=lighting, mode=mode, size=(w, h))
+    rv, rf, rc, rn = _mesh("reference_mesh", reference_mesh)
+    tv, tf, tc, tn = _mesh("test_mesh", test_mesh)
+    ref = R.render(rv, rf, rc, view, lighting=lighting, mode=mode, size=(w, h), normals=rn)
+    tst = R.render(tv, tf, tc, view, lighting=lighting, mode=mode, size=(w, h), normals=tn)
     ppd = pixels_per_degree(view, (w, h))
     jod = vmap = mean = fmap = None
     if "fovvdp" in metrics:

@@ -117,7 +117,7 @@ def _u8(x: np.ndarray) -> np.ndarray:
 
 
 def render(vertices, faces, colors, view, *, lighting=None, mode: str = "baked",
-           size: tuple[int, int] | None = None, background: float | None = None) -> np.ndarray:
+           size: tuple[int, int] | None = None, background: float | None = None, normals=None) -> np.ndarray:
     """Render a mesh for ``view``: returns (H, W, 3) float32 sRGB in [0, 1].
 
     ``vertices`` (V, 3), ``faces`` (T, 3), ``colors`` (V, 3) sRGB in [0, 1] or None. ``lighting``: an
@@ -126,8 +126,10 @@ def render(vertices, faces, colors, view, *, lighting=None, mode: str = "baked",
     or ``"relit"`` (per-pixel Lambert shading from the mesh's own vertex normals; see the module
     docstring). ``size`` = (width, height) in pixels (default the view's image size). The camera is
     the view's: eye, target, up and vertical field of view; the background is the view's background
-    relative luminance unless given. Raises ``RuntimeError`` with a hint when no OpenGL context can
-    be created.
+    relative luminance unless given. ``normals`` (V, 3): the vertex normals the relit pass shades from
+    (None: the mesh's own, :func:`vertex_normals`), as a mesh file carrying normals gives them (e.g. a cut
+    without its back faces, :func:`optim.drop_back_faces`, keeps the full cut's normals). Raises
+    ``RuntimeError`` with a hint when no OpenGL context can be created.
     """
     import optim
 
@@ -150,7 +152,13 @@ def render(vertices, faces, colors, view, *, lighting=None, mode: str = "baked",
         alpha = img[..., 3:4].astype(np.float32) / 255.0
         # GL's resolve averaged the sRGB-encoded samples: composite the same way (background sRGB).
         return img[..., :3].astype(np.float32) / 255.0 + (1.0 - alpha) * _linear_to_srgb(bg_lin)
-    passes = [_u8(0.5 * (vertex_normals(v, f) + 1.0))]
+    if normals is None:
+        nrm = vertex_normals(v, f)
+    else:
+        nrm = np.asarray(normals, dtype=np.float64)
+        if nrm.shape != v.shape or not np.isfinite(nrm).all():
+            raise PlodError(f"render: normals must be (V, 3) finite like the vertices, got {nrm.shape}")
+    passes = [_u8(0.5 * (nrm + 1.0))]
     if colors is not None:
         passes.append(_u8(np.clip(np.asarray(colors, dtype=np.float32), 0.0, 1.0)))
     imgs = _rasterise(v, f, passes, view, w, h)
@@ -199,7 +207,8 @@ class Comparison:
 
 def compare(tree, simplified, view, *, size: tuple[int, int] | None = None, mode: str = "baked",
             lighting=None) -> Comparison:
-    """Render ``tree``'s full mesh and ``simplified`` = (vertices, faces, colors) for ``view``; FLIP them.
+    """Render ``tree``'s full mesh and ``simplified`` = (vertices, faces, colors[, normals]) for ``view``;
+    FLIP them.
 
     ``size`` (width, height) renders smaller than the view's image; the pixels per degree passed to FLIP
     is scaled so the comparison is of the same angular content. ``mode``: see :func:`render`;
@@ -210,8 +219,8 @@ def compare(tree, simplified, view, *, size: tuple[int, int] | None = None, mode
     if lighting is None:
         lighting = getattr(tree, "lighting", None)
     original = render(tree.vertices, tree.faces, tree.colors, view, lighting=lighting, mode=mode, size=(w, h))
-    v2, f2, c2 = simplified
-    simple = render(v2, f2, c2, view, lighting=lighting, mode=mode, size=(w, h))
+    v2, f2, c2, n2 = (*simplified, None) if len(simplified) == 3 else simplified
+    simple = render(v2, f2, c2, view, lighting=lighting, mode=mode, size=(w, h), normals=n2)
     emap, mean = flip(original, simple, ppd)
     return Comparison(original, simple, emap, mean, ppd)
 

@@ -4,7 +4,8 @@ Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) 
 (``_tree``, built by ``_build``; clustering in ``_meshopt_tree`` (default) / ``_qem`` / ``_octree``, normal cube in
 ``_normal_cube``, level-by-level propagation in ``_levels``) -> view (``_view``, with its lights) -> score folds
 (``_score``: classify -> terms -> key -> propagate, over the per-tree ``_context``, what a renderer shows in
-``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``); fitting of model
+``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``; per-view back-face removal and the budget cut that counts
+only front-facing triangles in ``_facecull``); fitting of model
 constants in ``optim.fit``. Beside the meshes: the perceptual point-hierarchy traversal of [LH01 §4] / [RL00] in
 ``_points``, and Reddy's perceptual terrain quadtree [Red01] in ``_terrain``.
 """
@@ -20,6 +21,7 @@ from ._meshopt_tree import MeshoptHierarchy, meshopt_parents
 from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut, min_nonempty_budget, repair_monotone,
                    threshold_cut)
 from ._flips import Flips, cut_flips
+from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
 from ._view import View
 from ._context import ScoringContext, scoring_context
 from ._relight import cull_columns, normal_cones, region_columns, relit_columns, slab_half_width

@@ -471,13 +471,14 @@ def _text_as_utf8(p: Path, fmt: str) -> bytes | None:
     return _latin1_to_utf8(data)
 
 
-def save_mesh(path, vertices, faces, colors=None, *, protect=()):
+def save_mesh(path, vertices, faces, colors=None, *, protect=(), normals=None):
     """Write a triangle mesh atomically (format from the suffix: .ply, .obj, .off, .stl, .glb).
 
     ``protect`` lists input files that must never be overwritten (``PlodError`` before writing).
     An empty mesh (no triangles) is refused with ``PlodError``: :func:`load_mesh` rejects it.
-    Colours (V, 3) in [0, 1] are written as 8-bit vertex colours where the format supports them.
-    Returns the final path.
+    Colours (V, 3) in [0, 1] are written as 8-bit vertex colours where the format supports them;
+    ``normals`` (V, 3) as vertex normals where it holds them (PLY, OBJ, GLB; e.g. the whole cut's normals
+    of :func:`optim.drop_back_faces`, which a renderer should shade from). Returns the final path.
     """
     import trimesh
 
@@ -502,8 +503,18 @@ def save_mesh(path, vertices, faces, colors=None, *, protect=()):
         kw["vertex_colors"] = np.clip(np.round(c * 255.0), 0, 255).astype(np.uint8)
     if not np.isfinite(v).all():
         raise PlodError(f"save_mesh: refusing to write NaN or infinite coordinates to {str(p)!r}")
+    ex = _export_precision(v, fmt, p)
+    if normals is not None:
+        n = np.asarray(normals, dtype=np.float64)
+        if n.shape != v.shape or not np.isfinite(n).all():
+            raise PlodError(f"save_mesh: normals must be finite with shape {v.shape}, got {n.shape}")
+        kw["vertex_normals"] = n
+        if fmt == "ply":
+            ex["vertex_normal"] = True
+        elif fmt == "obj":
+            ex["include_normals"] = True
     mesh = trimesh.Trimesh(vertices=v, faces=f.reshape(-1, 3), process=False, **kw)
-    data = mesh.export(file_type=fmt, **_export_precision(v, fmt, p))
+    data = mesh.export(file_type=fmt, **ex)
     if isinstance(data, str):
         data = data.encode("utf-8")
     with atomic_path(p, protect=tuple(protect)) as tmp:

@@ -54,6 +54,28 @@ def test_imperceptible_cut_is_invisible_to_the_judge(judge, lighting):
     assert res2.jod < res.jod - 0.1
 
 
+def test_front_facing_budget_looks_better_at_equal_drawn_triangles(judge):
+    """The judge's view of ``optim.visible_budget_cut``: at the same number of drawn triangles, spending
+    them all on the side that faces the eye scores higher than a plain budget cut, and dropping the back
+    faces of one cut (keeping its normals) does not change its score at all."""
+    v, f = optim.bumpy_sphere(4, seed=5, amplitude=0.1)
+    mesh = A._Mesh("sphere", v, f, None)
+    tree = mesh.tree["relit"]
+    view = A._view(mesh, np.array([0.4, 0.3, 0.87]), 4.0, "relit", {"object_deg": 30.0, "gaze_error_deg": 1.0},
+                   model_lights=True)
+    keys = optim.score(tree, view)
+    budget = tree.n_triangles // 20
+    plain = optim.extract(tree, optim.budget_cut(tree, keys, budget, monotone="trust"))
+    front = optim.visible_budget_cut(tree, keys, len(plain[1]), view, monotone="trust")
+    assert front.triangles <= len(plain[1]) and front.cut.triangles > 1.5 * len(plain[1])
+    kw = dict(mode="relit", lighting=optim.Lighting(), size=SIZE, heatmap=False)
+    j_plain = _judged(judge, mesh.original("relit"), plain, view, **kw).jod
+    j_front = _judged(judge, mesh.original("relit"), front.mesh, view, **kw).jod
+    j_whole = _judged(judge, mesh.original("relit"), optim.extract(tree, front.cut), view, **kw).jod
+    assert j_front > j_plain + 0.1
+    assert j_front == pytest.approx(j_whole, abs=1e-6)
+
+
 def _row(cell, lighting, method, budget, jod, tri=100, inp=1000):
     return dict(cell=cell, lighting=lighting, method=method, budget=budget, jod=jod, triangles=tri,
                 input_triangles=inp, update_ms=10.0 if method == "perceptual" else None)

@@ -75,6 +75,23 @@ def test_budget_larger_than_mesh_keeps_everything(capsys, mesh_file):
     assert 600 <= res["output_triangles"] <= 1280
 
 
+def test_cull_back_faces_counts_front_facing_triangles(capsys, mesh_file, tmp_path):
+    """--cull-back-faces: the budget counts the triangles that face the eye, the output has no triangle
+    facing away, carries the whole cut's normals, and is drawn from a larger cut than without it."""
+    argv = (mesh_file, "--budget", 300, "--json", "--method", "octree", "--no-cache", "--eye", "0,0,4")
+    out = tmp_path / "front.ply"
+    code, stdout, _ = _run(capsys, *argv, "--cull-back-faces", "--out", out)
+    assert code == 0
+    res = json.loads(stdout)
+    _, plain, _ = _run(capsys, *argv)
+    plain = json.loads(plain)
+    assert 290 <= res["output_triangles"] <= 300 < res["cut_triangles"]
+    assert res["cut_triangles"] > 1.5 * plain["cut_triangles"] and res["cull_back_faces_margin_deg"] == 0.0
+    v, f, _ = optim.load_mesh(out)
+    assert f.shape[0] == res["output_triangles"] and not optim.facing_away(v, f, np.array([0.0, 0.0, 4.0])).any()
+    assert b"property float nx" in out.read_bytes()[:400]
+
+
 @pytest.mark.parametrize(
     "argv, msg",
     [
@@ -90,6 +107,8 @@ def test_budget_larger_than_mesh_keeps_everything(capsys, mesh_file):
         (["--imperceptible", "--metric", "size"], "--imperceptible needs --metric perceptual"),
         (["--budget", "10", "--out", "x.xyz"], "cannot write"),
         (["--budget", "10", "--target", "0,0,0"], "--target needs --eye"),
+        (["--budget", "10", "--cull-back-faces", "90"], "--cull-back-faces must be"),
+        (["--budget", "10", "--cull-back-faces", "x"], "--cull-back-faces needs a number"),
     ],
 )
 def test_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
