@@ -99,7 +99,7 @@ class VisibleCut(NamedTuple):
 
 
 def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: float = 0.0, monotone: str = "check",
-                       tolerance: float = 0.005, max_evaluations: int = 12) -> VisibleCut:
+                       tolerance: float = 0.005, max_evaluations: int = 12, hint: int | None = None) -> VisibleCut:
     """The largest :func:`optim.budget_cut` of ``keys`` whose front-facing triangles (not
     :func:`facing_away` from the eye by more than ``margin_deg``) number at most ``budget``.
 
@@ -107,8 +107,10 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     front-facing share until a cut no longer fits, then interpolates inside that bracket, until the
     front-facing count is within ``tolerance`` (a fraction of ``budget``) below the budget or the bracket
     is one triangle wide. Each evaluation is one budget cut, extract and facing test (milliseconds per
-    10^5 triangles). Returns a
-    :class:`VisibleCut` whose mesh has the back faces removed (:func:`drop_back_faces`)."""
+    10^5 triangles). ``hint``: a cut budget to try first (for a moving camera, the previous frame's
+    ``cut_budget``: the front-facing share changes little between frames, so the search often ends at
+    its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
+    (:func:`drop_back_faces`)."""
     from ._cut import _check_budget, budget_cut, extract
 
     budget = _check_budget(budget)
@@ -129,7 +131,18 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         return tried[b]
 
     lo, hi = budget, None  # lo fits (its front-facing triangles are at most its own triangles <= budget)
-    at(lo)
+    if hint is not None:
+        try:
+            hint = min(_check_budget(hint), total)
+        except PlodError:
+            raise PlodError(f"visible_budget_cut: hint must be a whole number of triangles >= 0, got {hint!r}") from None
+    if hint is not None and hint > budget:
+        if at(hint)[2] <= budget:
+            lo = hint
+        else:
+            hi = hint
+    if lo not in tried:
+        at(lo)
     reason = "evaluations"
     while True:
         cut_lo, _, n_lo = tried[lo]

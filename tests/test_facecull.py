@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import optim
 from pmetric import PlodError
@@ -29,6 +31,25 @@ def test_margin_keeps_triangles_turned_away_by_less(tilt_deg, margin_deg, away):
     t = math.radians(tilt_deg)
     eye = 10.0 * np.array([math.cos(t), 0.0, -math.sin(t)])
     assert optim.facing_away(v, f, eye, margin_deg)[0] == away
+
+
+_coord = st.floats(-1e3, 1e3, allow_nan=False, allow_subnormal=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_coord, min_size=12, max_size=12), st.floats(0.0, 80.0))
+def test_facing_is_the_sign_of_the_tetrahedron_volume(xs, margin):
+    """Against an independent formula: the triangle (a, b, c) faces away from the eye exactly when the
+    determinant [b - a, c - a, eye - a] is negative; a margin only ever keeps more triangles."""
+    p = np.array(xs, dtype=np.float64).reshape(4, 3)
+    v, f, eye = p[:3], np.array([[0, 1, 2]]), p[3]
+    det = float(np.linalg.det(np.stack([v[1] - v[0], v[2] - v[0], eye - v[0]])))
+    n = np.cross(v[1] - v[0], v[2] - v[0])
+    scale = float(np.linalg.norm(n) * np.linalg.norm(eye - v[0]))
+    away = bool(optim.facing_away(v, f, eye)[0])
+    if abs(det) > 1e-9 * max(scale, 1e-300):  # not within rounding of the plane
+        assert away == (det < 0)
+    assert not (optim.facing_away(v, f, eye, margin)[0] and not away)
 
 
 def test_sphere_share_facing_away_is_the_closed_form():
@@ -84,6 +105,21 @@ def test_visible_budget_cut_against_a_brute_force_search(sphere_case, fraction):
     assert r.triangles >= min(best, math.ceil(budget * (1 - 0.005)))
     assert r.stop_reason == "budget" and r.evaluations <= 12
     assert r.triangles > 1.6 * _front(tree, keys, budget, view)
+
+
+def test_a_good_hint_ends_the_search_early(sphere_case):
+    """With the previous frame's cut budget as the hint (here: this frame's own, and one 3 % off), the same
+    front-facing count within the tolerance, in one or two budget cuts instead of three or more."""
+    tree, view, keys = sphere_case
+    budget = tree.n_triangles // 10
+    cold = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust")
+    assert cold.evaluations >= 3
+    for hint in (cold.cut_budget, int(cold.cut_budget * 1.03), int(cold.cut_budget * 0.97)):
+        warm = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", hint=hint)
+        assert budget * (1 - 0.005) <= warm.triangles <= budget
+        assert warm.evaluations <= (1 if hint == cold.cut_budget else 3)
+    with pytest.raises(PlodError, match="hint"):
+        optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", hint=-5)
 
 
 def test_visible_budget_cut_whole_tree_and_bad_budget(sphere_case):
