@@ -358,22 +358,21 @@ def simplify(args) -> dict:
         check_writable(out, np.ldexp(tree.vertices, -unit_exp) if unit_exp else tree.vertices)
     view = build_view(tree.vertices, args, unit_exp)
     keys = _timed(t, "score", optim.score, tree, view, model, args.metric)
-    n2 = None
+    mesh = None  # with --cull-back-faces and --budget, the search extracts the cut's mesh itself
     if margin is not None and budget is not None:
         vc = _timed(t, "cut", optim.visible_budget_cut, tree, keys, budget, view, margin_deg=margin, monotone="trust")
-        cut = vc.cut
+        cut, mesh = vc.cut, vc.mesh
     else:
         cut = _timed(t, "cut", _cut, tree, keys, args, budget)
     if budget is not None and cut.triangles == 0:
         raise PlodError(f"--budget {budget} is below the smallest non-empty cut for this view "
                         f"({optim.min_nonempty_budget(tree, keys, monotone='trust')} triangles)")
-    if margin is not None and budget is not None:
-        v2, f2, c2, n2 = vc.mesh
-    else:
-        v2, f2, c2 = _timed(t, "extract", optim.extract, tree, cut)
+    if mesh is None:
+        mesh = _timed(t, "extract", optim.extract, tree, cut)
         if margin is not None:
-            v2, f2, c2, n2 = _timed(t, "cull", optim.drop_back_faces, (v2, f2, c2), view, margin)
-    if len(f2) == 0:
+            mesh = _timed(t, "cull", optim.drop_back_faces, mesh, view, margin)
+    v2, f2, c2, n2 = (*mesh, None) if margin is None else mesh
+    if margin is not None and len(f2) == 0:
         raise PlodError("every triangle of the cut faces away from the eye: nothing to write (check --eye)")
     if unit_exp:
         v2 = np.ldexp(np.asarray(v2, np.float64), -unit_exp)  # back to the file's units, exactly

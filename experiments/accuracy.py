@@ -154,6 +154,22 @@ def _view(mesh: _Mesh, direction, gaze_deg, lighting, cfg, model_lights: bool):
                             gaze_error_deg=cfg["gaze_error_deg"], **kw)
 
 
+def plod_mesh(tree, keys, view, cfg, target: int | None = None, *, cut=None):
+    """(mesh, triangles of the whole cut) of plod's cut for ``view``: ``cut`` as given, else the budget cut
+    of ``keys`` to ``target`` triangles; with ``cfg["face_cull"]`` drawn without its back faces, a budget
+    counting front-facing triangles (``optim.visible_budget_cut``)."""
+    import optim
+
+    cull, margin = bool(cfg.get("face_cull")), float(cfg.get("face_cull_margin_deg", 0.0))
+    if cut is None and cull:
+        vc = optim.visible_budget_cut(tree, keys, target, view, margin_deg=margin, monotone="trust")
+        return vc.mesh, vc.cut.triangles
+    if cut is None:
+        cut = optim.budget_cut(tree, keys, target, monotone="trust")
+    mesh = optim.extract(tree, cut)
+    return (optim.drop_back_faces(mesh, view, margin) if cull else mesh), cut.triangles
+
+
 def cell_results(mesh: _Mesh, direction, gaze_deg, lighting, cfg, models, model_lights=True, keep=None):
     """Judge every method of one cell; returns a list of result dicts (and, with ``keep`` a set of
     ``(method, budget)``, the judged meshes of those in ``keep_out``)."""
@@ -174,42 +190,30 @@ def cell_results(mesh: _Mesh, direction, gaze_deg, lighting, cfg, models, model_
         if keep is not None and (method, budget) in keep:
             kept[(method, budget)] = result
 
-    cull, margin = bool(cfg.get("face_cull")), float(cfg.get("face_cull_margin_deg", 0.0))
-
-    def budget_mesh(keys, target):
-        """(mesh, triangles of the whole cut) of the budget cut of ``keys`` to ``target`` triangles."""
-        if cull:
-            vc = optim.visible_budget_cut(tree, keys, target, view, margin_deg=margin, monotone="trust")
-            return vc.mesh, vc.cut.triangles
-        c = optim.budget_cut(tree, keys, target, monotone="trust")
-        return optim.extract(tree, c), c.triangles
-
     t0 = time.perf_counter()
     keys = optim.score(tree, view)
     cut = optim.threshold_cut(tree, keys, 1.0, monotone="trust")
-    result = optim.extract(tree, cut)
-    if cull:
-        result = optim.drop_back_faces(result, view, margin)
+    result, _ = plod_mesh(tree, keys, view, cfg, cut=cut)
     judged("imperceptible", None, result, 1e3 * (time.perf_counter() - t0), distance=float(cut.distance),
            cut_triangles=int(cut.triangles))
     T = tree.n_triangles
     for b in cfg["budgets"]:
         t0 = time.perf_counter()
         pk = optim.score(tree, view)
-        presult, pcut_t = budget_mesh(pk, max(int(b * T), 1))
+        presult, pcut_t = plod_mesh(tree, pk, view, cfg, max(int(b * T), 1))
         ms = 1e3 * (time.perf_counter() - t0)
         judged("perceptual", b, presult, ms, cut_triangles=pcut_t)
         target = len(presult[1])
         for metric in ("size", "geometric"):
             k = optim.score(tree, view, None, metric)
-            m, ct = budget_mesh(k, target)
+            m, ct = plod_mesh(tree, k, view, cfg, target)
             judged(metric, b, m, cut_triangles=ct)
         for peer in PEERS:
             judged(peer, b, mesh.peer(peer, lighting, target))
         if b == cfg["model_budget"]:
             for name, model in models.items():
                 k = optim.score(tree, view, model)
-                m, ct = budget_mesh(k, target)
+                m, ct = plod_mesh(tree, k, view, cfg, target)
                 judged(f"model:{name}", b, m, cut_triangles=ct)
     return (rows, kept) if keep is not None else rows
 
@@ -469,16 +473,10 @@ def worst_images(rows, cfg, out, model_lights=True):
         view = _view(mesh, d, r["gaze_deg"], lighting, cfg, model_lights)
         tree = mesh.tree[lighting]
         keys = optim.score(tree, view)
-        margin = float(cfg.get("face_cull_margin_deg", 0.0))
         if method == "imperceptible":
-            result = optim.extract(tree, optim.threshold_cut(tree, keys, 1.0, monotone="trust"))
-            if cfg.get("face_cull"):
-                result = optim.drop_back_faces(result, view, margin)
-        elif cfg.get("face_cull"):
-            result = optim.visible_budget_cut(tree, keys, max(int(b * tree.n_triangles), 1), view, margin_deg=margin,
-                                              monotone="trust").mesh
+            result, _ = plod_mesh(tree, keys, view, cfg, cut=optim.threshold_cut(tree, keys, 1.0, monotone="trust"))
         else:
-            result = optim.extract(tree, optim.budget_cut(tree, keys, max(int(b * tree.n_triangles), 1), monotone="trust"))
+            result, _ = plod_mesh(tree, keys, view, cfg, max(int(b * tree.n_triangles), 1))
         res = judge(mesh.original(lighting), result, view, mode=lighting,
                     lighting=optim.Lighting() if lighting == "relit" else None, size=tuple(cfg["size"]))
         name = f"worst_{method}_{k}.png"

@@ -215,16 +215,6 @@ def fovvdp(reference: np.ndarray, test: np.ndarray, view, *, heatmap: bool = Tru
 
 
 # ----------------------------------------------------------------------------------------------- judge
-def _mesh(name: str, mesh):
-    """(vertices, faces, colors, normals or None) of a 3-tuple or a 4-tuple with vertex normals."""
-    try:
-        n = len(mesh)
-        v, f, c, nrm = (*mesh, None) if n == 3 else mesh
-    except (TypeError, ValueError):
-        raise PlodError(f"judge: {name} must be (vertices, faces, colors or None[, normals])") from None
-    return v, f, c, nrm
-
-
 def judge(reference_mesh, test_mesh, view, *, mode: str = "relit", lighting=None, size=None,
           metrics=METRICS, heatmap: bool = True) -> JudgeResult:
     """Render ``reference_mesh`` and ``test_mesh`` (each ``(vertices, faces, colors or None)``, or with
@@ -245,8 +235,8 @@ def judge(reference_mesh, test_mesh, view, *, mode: str = "relit", lighting=None
     if bad or not metrics:
         raise PlodError(f"judge: metrics must be a non-empty subset of {METRICS}, got {tuple(metrics)!r}")
     w, h = rendering_size(view, size)
-    rv, rf, rc, rn = _mesh("reference_mesh", reference_mesh)
-    tv, tf, tc, tn = _mesh("test_mesh", test_mesh)
+    rv, rf, rc, rn = R.mesh_parts(reference_mesh, "judge: reference_mesh")
+    tv, tf, tc, tn = R.mesh_parts(test_mesh, "judge: test_mesh")
     ref = R.render(rv, rf, rc, view, lighting=lighting, mode=mode, size=(w, h), normals=rn)
     tst = R.render(tv, tf, tc, view, lighting=lighting, mode=mode, size=(w, h), normals=tn)
     ppd = pixels_per_degree(view, (w, h))

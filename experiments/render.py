@@ -205,6 +205,16 @@ class Comparison:
     pixels_per_degree: float
 
 
+def mesh_parts(mesh, who: str = "mesh") -> tuple:
+    """``(vertices, faces, colors, normals or None)`` of a mesh given as ``(vertices, faces, colors or
+    None)`` or with vertex normals (V, 3) as a fourth element; PlodError naming ``who`` otherwise."""
+    try:
+        v, f, c, nrm = (*mesh, None) if len(mesh) == 3 else mesh
+    except (TypeError, ValueError):
+        raise PlodError(f"{who} must be (vertices, faces, colors or None[, normals])") from None
+    return v, f, c, nrm
+
+
 def compare(tree, simplified, view, *, size: tuple[int, int] | None = None, mode: str = "baked",
             lighting=None) -> Comparison:
     """Render ``tree``'s full mesh and ``simplified`` = (vertices, faces, colors[, normals]) for ``view``;
@@ -219,7 +229,7 @@ def compare(tree, simplified, view, *, size: tuple[int, int] | None = None, mode
     if lighting is None:
         lighting = getattr(tree, "lighting", None)
     original = render(tree.vertices, tree.faces, tree.colors, view, lighting=lighting, mode=mode, size=(w, h))
-    v2, f2, c2, n2 = (*simplified, None) if len(simplified) == 3 else simplified
+    v2, f2, c2, n2 = mesh_parts(simplified, "compare: simplified")
     simple = render(v2, f2, c2, view, lighting=lighting, mode=mode, size=(w, h), normals=n2)
     emap, mean = flip(original, simple, ppd)
     return Comparison(original, simple, emap, mean, ppd)
