@@ -48,6 +48,8 @@ for name, make in (("bumpy_torus(1000, 500)", lambda: optim.bumpy_torus(1000, 50
             bw = min(bw, time.perf_counter() - t0)
         warm.append(bw * 1e3)
         wevals.append(r.evaluations)
+    p_ms, v_ms, w_ms = statistics.median(plain), statistics.median(vis), statistics.median(warm)
+    print(f"{name}: visible_budget_cut / (cut + extract) {v_ms / p_ms:.1f}x static, {w_ms / p_ms:.1f}x moving with hint")
     print(f"{name}: cut + extract {statistics.median(plain):.1f} ms, visible_budget_cut {statistics.median(vis):.1f} ms "
           f"({statistics.median(evals):g} budget cuts, whole cut / drawn triangles {statistics.median(ratio):.2f}); "
           f"moving camera with the previous frame's hint {statistics.median(warm):.1f} ms "
