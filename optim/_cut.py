@@ -315,57 +315,93 @@ def _extract_parts(tree, unf):
     """:func:`extract` of a checked (N,) bool ``unfolded`` and the input triangle of each output face:
     ``(vertices, faces, colors, keep (T',) intp ascending)``, ``faces[i]`` being input triangle
     ``keep[i]`` with its corners replaced by their representatives (shared with :mod:`optim._flips`)."""
+    parts = _boundary_corners(tree, unf)
+    if parts is None:  # not closed under ancestors
+        return _reference_parts(tree, unf)
+    bnd, fb, keep = parts
+    V, nb = tree.n_vertices, bnd.size
+    used = np.zeros(nb, dtype=bool)
+    used[fb.ravel()] = True
+    ub = np.flatnonzero(used)
+    mv = tree.min_vertex.take(bnd.take(ub))  # a cluster is named by its smallest input vertex
+    srt = ub.take(_order_of_distinct(mv, V))  # used ids by name
+    newidx = np.empty(nb, dtype=np.int32)  # read only at used boundary ids
+    newidx[srt] = np.arange(srt.size, dtype=np.int32)
+    faces = newidx.take(fb)
+    nodes = bnd.take(srt)
+    verts = _representatives(tree, nodes)
+    colors = None
+    if tree.color is not None:
+        colors = tree.color.take(nodes, axis=0)
+        if tree.colors is not None:
+            leaf = np.flatnonzero(tree.child_count.take(nodes) == 0)  # leaves keep the input colour exactly
+            colors[leaf] = tree.colors.take(tree.min_vertex.take(nodes.take(leaf)), axis=0)
+    return verts, faces, colors, keep
+
+
+def _boundary_corners(tree, unf):
+    """First stage of :func:`extract`: ``(bnd, fb, keep)``, the highest folded nodes ``bnd`` (nb,) in
+    depth-first leaf order, the boundary id of each corner of the kept triangles ``fb`` (T', 3) int32 and
+    those triangles ``keep`` (T',) ascending; None when ``unf`` is not closed under ancestors.
+
+    Work proportional to the cut, plus a few O(V) fills: the kept triangles are the subtris of the
+    unfolded nodes (contiguous per node); the highest folded nodes (folded, parent unfolded) are the
+    folded children of unfolded nodes, and their depth-first leaf ranges tile 0..V-1, so a forward fill
+    maps every leaf position to its node."""
     V, T = tree.n_vertices, tree.n_triangles
-    # Work proportional to the cut, plus a few O(V) fills: the kept triangles are the subtris of the
-    # unfolded nodes (contiguous per node); the highest folded nodes (folded, parent unfolded) are the
-    # folded children of unfolded nodes, and their depth-first leaf ranges tile 0..V-1, so a forward
-    # fill maps every leaf position to its node. Same arrays as :func:`_extract_reference`.
     corner_lp, sub_start, subtris = _extract_index_fast(tree)
     U = np.flatnonzero(unf)
     if U.size:
         bnd = expand_ranges(tree.child_start.take(U), tree.child_count.take(U))
         bnd = bnd[~unf.take(bnd)]
         keep = subtris.take(expand_ranges(sub_start.take(U), tree.num_subtris.take(U)))
-        if keep.size * 3 < T:  # few triangles: sort them (SIMD sort) rather than scan a (T,) mask
-            keep.sort()
-        else:
-            mask = np.zeros(T, dtype=bool)
-            mask[keep] = True
-            keep = np.flatnonzero(mask)
+        keep = _ascending(keep, T)
     else:
         bnd = np.zeros(1, dtype=np.intp)
         keep = np.zeros(0, dtype=np.intp)
     nb = bnd.size
-    # boundary nodes in leaf order (sort of packed 64-bit (leaf_lo, position) codes)
+    # boundary nodes in leaf order (distinct leaf_lo < V: a sort of the few, else one scatter over V)
     lo = tree.leaf_lo.take(bnd)
-    order = (np.sort((lo.astype(np.int64) << 32) | np.arange(nb, dtype=np.int64)) & 0xFFFFFFFF).astype(np.intp)
+    order = _order_of_distinct(lo, V)
     bnd = bnd.take(order)
-    size = tree.leaf_hi.take(bnd) - lo.take(order)
-    if int(size.sum()) != V:  # not closed under ancestors: the leaf ranges do not tile 0..V-1
-        return _reference_parts(tree, unf)
+    lo = lo.take(order)
+    if order.size != nb or int((tree.leaf_hi.take(bnd) - lo).sum()) != V:  # not closed: no tiling of 0..V-1
+        return None
     at = np.zeros(V, dtype=np.int32)  # boundary id at every leaf position: +1 where each range starts, summed
-    at[lo.take(order[1:])] = 1
+    at[lo[1:]] = 1
     np.cumsum(at, out=at)
     fb = at.take(_take_rows(corner_lp, keep))  # (T', 3) boundary ids
-    used = np.zeros(nb, dtype=bool)
-    used[fb.ravel()] = True
-    ub = np.flatnonzero(used)
-    mv = tree.min_vertex.take(bnd.take(ub))  # a cluster is named by its smallest input vertex
-    srt = (np.sort((mv.astype(np.int64) << 32) | ub) & 0xFFFFFFFF).astype(np.intp)  # used ids by name
-    newidx = np.empty(nb, dtype=np.int32)  # read only at used boundary ids
-    newidx[srt] = np.arange(srt.size, dtype=np.int32)
-    faces = newidx.take(fb)
-    nodes = bnd.take(srt)
-    out_v = tree.min_vertex.take(nodes)
+    return bnd, fb, keep
+
+
+def _representatives(tree, nodes) -> np.ndarray:
+    """(k, 3) positions of the nodes a cut draws (input vertices for leaves, proxies otherwise), in the
+    input vertices' dtype."""
     verts = _take_rows(tree.position, nodes).astype(tree.vertices.dtype)
     leaf = np.flatnonzero(tree.child_count.take(nodes) == 0)  # leaves give back the input vertex exactly
-    verts[leaf] = tree.vertices.take(out_v.take(leaf), axis=0)
-    colors = None
-    if tree.color is not None:
-        colors = tree.color.take(nodes, axis=0)
-        if tree.colors is not None:
-            colors[leaf] = tree.colors.take(out_v.take(leaf), axis=0)
-    return verts, faces, colors, keep
+    verts[leaf] = tree.vertices.take(tree.min_vertex.take(nodes.take(leaf)), axis=0)
+    return verts
+
+
+def _ascending(idx: np.ndarray, n: int) -> np.ndarray:
+    """Distinct integers ``idx`` in [0, n) in ascending order: a sort when they are few (under n / 64),
+    else a (n,) mask and its nonzero positions (O(n); measured on 2 cores: 100k kept of 1M triangles, 2.3
+    ms sorting the subtris of the unfolded nodes against 1.0 ms by mask)."""
+    if idx.size * 64 < n:
+        return np.sort(idx)
+    mask = np.zeros(n, dtype=bool)
+    mask[idx] = True
+    return np.flatnonzero(mask)
+
+
+def _order_of_distinct(vals: np.ndarray, n: int) -> np.ndarray:
+    """(k,) intp: the permutation sorting the integers ``vals`` (k,) in [0, n) ascending, when they are
+    distinct (repeated values: fewer than k positions, one per value; argsort keeps them all)."""
+    if vals.size * 64 < n:
+        return np.argsort(vals, kind="stable")
+    slot = np.full(n, -1, dtype=np.intp)
+    slot[vals] = np.arange(vals.size, dtype=np.intp)
+    return slot[slot >= 0]  # shorter than vals when they repeat
 
 
 def _take_rows(a: np.ndarray, idx) -> np.ndarray:

@@ -48,18 +48,44 @@ def facing_away(vertices, faces, view_or_eye, margin_deg: float = 0.0) -> np.nda
     zero-area triangles never count as facing away (they draw nothing either way)."""
     eye = _eye(view_or_eye)
     m = _check_margin(margin_deg)
-    v = np.asarray(vertices, np.float64)
     f = np.asarray(faces)
     if f.size == 0:
         return np.zeros(0, bool)
-    a = v[f[:, 0]]
-    e1, e2, d = v[f[:, 1]] - a, v[f[:, 2]] - a, eye - a
-    n = np.cross(e1, e2)
-    dot = np.einsum("ij,ij->i", n, d)
-    if m == 0.0:
+    return _away(np.asarray(vertices, np.float64), f, eye, m)
+
+
+def _away(v: np.ndarray, f: np.ndarray, eye: np.ndarray, margin_deg: float) -> np.ndarray:
+    """:func:`facing_away` of float64 ``v`` (V, 3), int ``f`` (T, 3) (non-empty), checked eye and margin:
+    ``n . (eye - a) < -sin(margin) |n| |eye - a|`` with ``n = (b - a) x (c - a)`` (exactly 0 for a
+    triangle with two equal corners). One gather per coordinate and corner and the arithmetic by columns
+    (about 4 ms for 200k triangles on one core, against 11 ms for ``np.cross`` and ``einsum`` on (T, 3) rows)."""
+    cols = [np.ascontiguousarray(v[:, k]) for k in range(3)]
+    ax, ay, az = (c.take(f[:, 0]) for c in cols)
+    ux, uy, uz = (c.take(f[:, 1]) - a for c, a in zip(cols, (ax, ay, az)))
+    wx, wy, wz = (c.take(f[:, 2]) - a for c, a in zip(cols, (ax, ay, az)))
+    nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+    dx, dy, dz = eye[0] - ax, eye[1] - ay, eye[2] - az
+    dot = nx * dx + ny * dy + nz * dz
+    if margin_deg == 0.0:
         return dot < 0.0
-    scale = np.linalg.norm(n, axis=1) * np.linalg.norm(d, axis=1)
-    return dot < -np.sin(np.radians(m)) * scale
+    scale = np.sqrt((nx * nx + ny * ny + nz * nz) * (dx * dx + dy * dy + dz * dz))
+    return dot < -np.sin(np.radians(margin_deg)) * scale
+
+
+def _front_count(tree, cut, eye: np.ndarray, margin_deg: float) -> int:
+    """Front-facing triangles of ``optim.extract(tree, cut)`` (the count :func:`drop_back_faces` keeps),
+    without building the mesh: the same corner positions, read through the cut's boundary nodes."""
+    from ._cut import _boundary_corners, _representatives, extract
+
+    parts = _boundary_corners(tree, cut.unfolded)
+    if parts is None:
+        v, f, _ = extract(tree, cut)
+    else:
+        bnd, f, _ = parts
+        v = _representatives(tree, bnd)
+    if f.size == 0:
+        return 0
+    return int(len(f) - np.count_nonzero(_away(np.asarray(v, np.float64), f, eye, margin_deg)))
 
 
 def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
@@ -106,28 +132,27 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     The budget cuts are nested in their budget, so the search grows the cut budget by the inverse of the
     front-facing share until a cut no longer fits, then interpolates inside that bracket, until the
     front-facing count is within ``tolerance`` (a fraction of ``budget``) below the budget or the bracket
-    is one triangle wide. Each evaluation is one budget cut, extract and facing test (milliseconds per
-    10^5 triangles). ``hint``: a cut budget to try first (for a moving camera, the previous frame's
+    is one triangle wide. Each evaluation is one budget cut and a count of its front-facing triangles
+    (the corners read through the cut's boundary nodes, no mesh built; milliseconds per 10^5 triangles);
+    the cut returned is extracted once. ``hint``: a cut budget to try first (for a moving camera, the previous frame's
     ``cut_budget``: the front-facing share changes little between frames, so the search often ends at
     its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
     (:func:`drop_back_faces`)."""
     from ._cut import _check_budget, budget_cut, extract
 
     budget = _check_budget(budget)
-    _eye(view_or_eye)
-    _check_margin(margin_deg)
     if not (0.0 <= tolerance < 1.0) or int(max_evaluations) < 1:
         raise PlodError("visible_budget_cut: tolerance must be in [0, 1) and max_evaluations >= 1")
     total = int(tree.n_triangles)
     tried = {}
 
-    def at(b):  # (cut, its mesh, front-facing count); normals only for the one returned
+    eye, margin = _eye(view_or_eye), _check_margin(margin_deg)
+
+    def at(b):  # (cut, its front-facing triangles); the mesh is extracted for the one returned only
         b = int(min(max(b, 0), total))
         if b not in tried:
             cut = budget_cut(tree, keys, b, monotone=monotone)
-            mesh = extract(tree, cut)
-            tried[b] = (cut, mesh, int(len(mesh[1]) - np.count_nonzero(facing_away(mesh[0], mesh[1], view_or_eye,
-                                                                                    margin_deg))))
+            tried[b] = (cut, _front_count(tree, cut, eye, margin))
         return tried[b]
 
     lo, hi = budget, None  # lo fits (its front-facing triangles are at most its own triangles <= budget)
@@ -137,7 +162,7 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         except PlodError:
             raise PlodError(f"visible_budget_cut: hint must be a whole number of triangles >= 0, got {hint!r}") from None
     if hint is not None and hint > budget:
-        if at(hint)[2] <= budget:
+        if at(hint)[1] <= budget:
             lo = hint
         else:
             hi = hint
@@ -145,7 +170,7 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         at(lo)
     reason = "evaluations"
     while True:
-        cut_lo, _, n_lo = tried[lo]
+        cut_lo, n_lo = tried[lo]
         if cut_lo.stop_reason == "all_unfolded":
             reason = "all_unfolded"
             break
@@ -157,17 +182,17 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         if hi is None:  # scale by the front-facing share: front triangles grow about in proportion
             nxt = max(lo + 1, int(np.ceil(lo * budget / max(n_lo, 1))))
         else:  # interpolate inside the bracket, kept strictly inside it
-            n_hi = tried[hi][2]
+            n_hi = tried[hi][1]
             nxt = int(lo + (hi - lo) * (budget - n_lo) / max(n_hi - n_lo, 1))
             nxt = min(max(nxt, lo + 1), hi - 1)
         nxt = min(nxt, total)
         if nxt <= lo:
             reason = "budget"
             break
-        if at(nxt)[2] <= budget:
+        if at(nxt)[1] <= budget:
             lo = nxt
         else:
             hi = nxt
-    cut, mesh, n = tried[lo]
-    mesh = drop_back_faces(mesh, view_or_eye, margin_deg)
+    cut, n = tried[lo]
+    mesh = drop_back_faces(extract(tree, cut), eye, margin)
     return VisibleCut(cut, mesh, n, lo, len(tried), reason)

@@ -240,6 +240,23 @@ def test_tetrahedron_exact_counts():
         assert set(counts) <= set(np.concatenate([[0], np.cumsum(t.num_subtris[order])]).tolist())
 
 
+@pytest.mark.parametrize("k", [0, 1, 3, 50, 900])
+def test_extract_orderings_equal_sorting(k):
+    """extract's O(n) orderings (mask / scatter over [0, n)) give what sorting gives, on both sides of
+    their switch (k * 64 < n sorts); repeated values come back once each in the scatter."""
+    from optim._cut import _ascending, _order_of_distinct
+
+    n = 1000
+    rng = np.random.default_rng(k)
+    vals = rng.choice(n, size=k, replace=False)
+    assert np.array_equal(_ascending(vals.copy(), n), np.sort(vals))
+    assert np.array_equal(_order_of_distinct(vals, n), np.argsort(vals))
+    if k >= 50:
+        rep = np.concatenate([vals, vals[:5]])
+        order = _order_of_distinct(rep, n)
+        assert order.size == k and np.array_equal(rep[order], np.sort(vals))
+
+
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_extract_equals_reference_implementation(name, seed):
@@ -250,7 +267,7 @@ def test_extract_equals_reference_implementation(name, seed):
     tree = TREES[name]
     rng = np.random.default_rng(seed)
     keys = _random_keys(tree, rng, ties=bool(seed % 2))
-    for frac in (0.0, 0.05, 0.3, 0.7, 1.0):
+    for frac in (0.0, 0.005, 0.05, 0.3, 0.7, 1.0):  # 0.005: extract's sorting branches, above: its scatters
         cut = optim.budget_cut(tree, keys, int(frac * tree.n_triangles))
         for a, b in zip(optim.extract(tree, cut), _extract_reference(tree, cut)):
             assert (a is None and b is None) or (np.array_equal(a, b) and a.dtype == b.dtype)
