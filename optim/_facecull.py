@@ -129,10 +129,11 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     """The largest :func:`optim.budget_cut` of ``keys`` whose front-facing triangles (not
     :func:`facing_away` from the eye by more than ``margin_deg``) number at most ``budget``.
 
-    The budget cuts are nested in their budget, so the search grows the cut budget by the inverse of the
-    front-facing share until a cut no longer fits, then interpolates inside that bracket, until the
-    front-facing count is within ``tolerance`` (a fraction of ``budget``) below the budget or the bracket
-    is one triangle wide. Each evaluation is one budget cut and a count of its front-facing triangles
+    The budget cuts are nested in their budget, so the search tries twice the budget first (about half of
+    a closed surface faces away), scales the cut budget by the front-facing share it finds until it has a
+    cut that fits and one that does not, then interpolates inside that bracket, aiming at the middle of
+    the accepted window, until the front-facing count is within ``tolerance`` (a fraction of ``budget``)
+    below the budget or the bracket is one triangle wide. Each evaluation is one budget cut and a count of its front-facing triangles
     (the corners read through the cut's boundary nodes, no mesh built; milliseconds per 10^5 triangles);
     the cut returned is extracted once. ``hint``: a cut budget to try first (for a moving camera, the previous frame's
     ``cut_budget``: the front-facing share changes little between frames, so the search often ends at
@@ -155,44 +156,62 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
             tried[b] = (cut, _front_count(tree, cut, eye, margin))
         return tried[b]
 
-    lo, hi = budget, None  # lo fits (its front-facing triangles are at most its own triangles <= budget)
     if hint is not None:
         try:
             hint = min(_check_budget(hint), total)
         except PlodError:
             raise PlodError(f"visible_budget_cut: hint must be a whole number of triangles >= 0, got {hint!r}") from None
-    if hint is not None and hint > budget:
-        if at(hint)[1] <= budget:
-            lo = hint
+    cap = int(max_evaluations)
+    goal = budget - 0.5 * tolerance * budget  # aim inside the accepted window, not at its edge
+    lo, hi = min(budget, total), None  # lo fits (its front-facing triangles are at most its triangles <= budget)
+
+    def probe(b):  # evaluate b > lo if the cap leaves room for lo too; False when it does not
+        nonlocal lo, hi
+        if len(tried) + (lo not in tried) >= cap:
+            return False
+        if at(b)[1] <= budget:
+            lo = b
         else:
-            hi = hint
-    if lo not in tried:
-        at(lo)
+            hi = b
+        return True
+
+    # first probe: the hint, else twice the budget (about half of a closed surface faces away)
+    first = hint if hint is not None and hint > budget else min(2 * budget, total)
+    if first > budget:
+        probe(first)
     reason = "evaluations"
     while True:
-        cut_lo, n_lo = tried[lo]
-        if cut_lo.stop_reason == "all_unfolded":
-            reason = "all_unfolded"
-            break
-        if budget - n_lo <= tolerance * budget or (hi is not None and hi - lo <= 1):
-            reason = "budget"
-            break
-        if len(tried) >= int(max_evaluations):
-            break
+        if lo in tried:
+            cut_lo, n_lo = tried[lo]
+            if cut_lo.stop_reason == "all_unfolded":
+                reason = "all_unfolded"
+                break
+            if budget - n_lo <= tolerance * budget or (hi is not None and hi - lo <= 1):
+                reason = "budget"
+                break
         if hi is None:  # scale by the front-facing share: front triangles grow about in proportion
-            nxt = max(lo + 1, int(np.ceil(lo * budget / max(n_lo, 1))))
+            if lo not in tried:
+                at(lo)
+                continue
+            nxt = max(lo + 1, int(np.ceil(lo * goal / max(n_lo, 1))))
+        elif lo not in tried:  # only a cut too large so far: scale it down (no triangles at budget 0)
+            nxt = int(hi * goal / max(tried[hi][1], 1))
+            if nxt <= lo:
+                at(lo)
+                continue
+            nxt = min(nxt, hi - 1)
         else:  # interpolate inside the bracket, kept strictly inside it
             n_hi = tried[hi][1]
-            nxt = int(lo + (hi - lo) * (budget - n_lo) / max(n_hi - n_lo, 1))
+            nxt = int(lo + (hi - lo) * (goal - n_lo) / max(n_hi - n_lo, 1))
             nxt = min(max(nxt, lo + 1), hi - 1)
         nxt = min(nxt, total)
         if nxt <= lo:
             reason = "budget"
             break
-        if at(nxt)[1] <= budget:
-            lo = nxt
-        else:
-            hi = nxt
+        if not probe(nxt):
+            break
+    if lo not in tried:
+        at(lo)
     cut, n = tried[lo]
     mesh = drop_back_faces(extract(tree, cut), eye, margin)
     return VisibleCut(cut, mesh, n, lo, len(tried), reason)

@@ -107,13 +107,31 @@ def test_visible_budget_cut_against_a_brute_force_search(sphere_case, fraction):
     assert r.triangles > 1.6 * _front(tree, keys, budget, view)
 
 
+@pytest.mark.parametrize("cap", [1, 2, 3])
+def test_visible_budget_cut_respects_max_evaluations(sphere_case, cap):
+    """At most ``max_evaluations`` budget cuts, always returning one that fits: with one, the plain budget
+    cut (its front faces are at most its triangles); the count returned is the mesh's."""
+    tree, view, keys = sphere_case
+    budget = tree.n_triangles // 10
+    r = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", tolerance=0.0, max_evaluations=cap)
+    assert r.evaluations <= cap and r.triangles == len(r.mesh[1]) <= budget
+    assert r.triangles == _front(tree, keys, r.cut_budget, view)
+    if cap == 1:
+        assert r.cut_budget == budget and r.stop_reason == "evaluations"
+    exact = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", tolerance=0.0)
+    assert exact.triangles >= r.triangles and exact.stop_reason == "budget"
+    # the budget reached exactly, or no larger cut budget fits
+    assert exact.triangles == budget or _front(tree, keys, exact.cut_budget + 1, view) > budget
+
+
 def test_a_good_hint_ends_the_search_early(sphere_case):
     """With the previous frame's cut budget as the hint (here: this frame's own, and one 3 % off), the same
-    front-facing count within the tolerance, in one or two budget cuts instead of three or more."""
+    front-facing count within the tolerance: one budget cut with this frame's own (the search without a
+    hint takes two or three: twice the budget, then scaled by the front-facing share)."""
     tree, view, keys = sphere_case
     budget = tree.n_triangles // 10
     cold = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust")
-    assert cold.evaluations >= 3
+    assert 2 <= cold.evaluations <= 3
     for hint in (cold.cut_budget, int(cold.cut_budget * 1.03), int(cold.cut_budget * 0.97)):
         warm = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", hint=hint)
         assert budget * (1 - 0.005) <= warm.triangles <= budget
