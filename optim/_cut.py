@@ -318,7 +318,13 @@ def _extract_parts(tree, unf):
     parts = _boundary_corners(tree, unf)
     if parts is None:  # not closed under ancestors
         return _reference_parts(tree, unf)
-    bnd, fb, keep = parts
+    return _mesh_from_boundary(tree, *parts)
+
+
+def _mesh_from_boundary(tree, bnd, fb, keep):
+    """Second stage of :func:`extract`: the mesh ``(vertices, faces, colors, keep)`` of
+    :func:`_boundary_corners`'s arrays (the boundary nodes the corners use, named and ordered by their
+    smallest input vertex)."""
     V, nb = tree.n_vertices, bnd.size
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True

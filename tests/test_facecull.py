@@ -101,6 +101,8 @@ def test_visible_budget_cut_against_a_brute_force_search(sphere_case, fraction):
     r = optim.visible_budget_cut(tree, keys, budget, view, monotone="trust", tolerance=0.005)
     assert r.triangles == len(r.mesh[1]) <= budget
     assert r.triangles == _front(tree, keys, r.cut_budget, view)
+    ref = optim.drop_back_faces(optim.extract(tree, r.cut), view)  # the mesh finished from the search's arrays
+    assert all(np.array_equal(a, b) for a, b in zip(r.mesh, ref))
     best = max(n for n in (_front(tree, keys, b, view) for b in range(budget, tree.n_triangles + 1, 7)) if n <= budget)
     assert r.triangles >= min(best, math.ceil(budget * (1 - 0.005)))
     assert r.stop_reason == "budget" and r.evaluations <= 12
