@@ -73,52 +73,65 @@ def priorities(tree, view, model, variants):
     return out
 
 
+HELD_OUT = ["cow.obj", "stanford-bunny.obj", "turbineblade.ply", "sphere:5:7"]  # in no test and not in the sweep
+SIZE = (960, 540)
+
+
+def held_out_mesh(name):
+    """The sweep's :class:`experiments.accuracy._Mesh` of a ../shared mesh file or a procedural spec."""
+    v, f, c = procedural_mesh(name) if ":" in name else optim.load_mesh(ROOT.parent / "shared/data/meshes" / name)
+    return _Mesh(name, v, f, c)
+
+
+def judge_fn(mesh, view, lighting):
+    """JOD (4 decimals) of a result against the cell's original, as the sweep judges it."""
+    light = optim.Lighting() if lighting == "relit" else None
+    ref = mesh.original(lighting)
+    return lambda res: round(judge(ref, res, view, mode=lighting, lighting=light, size=SIZE, heatmap=False).jod, 4)
+
+
+def budget_row(tree, view, cfg, b, J, **head):
+    """``(row, target)``: today's perceptual budget cut at ``b`` of the input (face culled per ``cfg``) and
+    plod's size and geometric keys at its drawn count ``target``, judged by ``J``; ``head`` leads the row."""
+    pres, _ = plod_mesh(tree, optim.score(tree, view), view, cfg, max(int(b * tree.n_triangles), 1))
+    target = len(pres[1])
+    row = dict(head, budget=b, tris=target, perceptual=J(pres))
+    for metric in ("size", "geometric"):
+        row[metric] = J(plod_mesh(tree, optim.score(tree, view, None, metric), view, cfg, target)[0])
+    return row, target
+
+
+def emit(out, row):
+    print(json.dumps(row), flush=True)
+    out.write(json.dumps(row) + "\n")
+    out.flush()
+
+
 def main():
     out = open(sys.argv[1], "a")
-    names = sys.argv[2].split(",") if len(sys.argv) > 2 else ["cow.obj", "stanford-bunny.obj", "turbineblade.ply",
-                                                               "sphere:5:7"]
-    lightings = ["relit"]
+    names = sys.argv[2].split(",") if len(sys.argv) > 2 else HELD_OUT
     variants = ["pool1", "pool2", "pool3", "poolnc2"]
-    cfg = dict(DEFAULTS, face_cull=True, size=[960, 540])
+    cfg = dict(DEFAULTS, face_cull=True, size=list(SIZE))
     model = optim.default_model()
     for name in names:
-        if ":" in name:
-            v, f, c = procedural_mesh(name)
-        else:
-            v, f, c = optim.load_mesh(ROOT.parent / "shared/data/meshes" / name)
-        mesh = _Mesh(name, v, f, c)
+        mesh = held_out_mesh(name)
+        tree = mesh.tree["relit"]
         for d in view_directions(1, 77, name):
             for g in (0.0, 8.0):
-                for lighting in lightings:
-                    tree = mesh.tree[lighting]
-                    view = _view(mesh, d, g, lighting, cfg, True)
-                    light = optim.Lighting() if lighting == "relit" else None
-                    ref = mesh.original(lighting)
-                    T = tree.n_triangles
-                    pk = optim.score(tree, view)
-                    pr = priorities(tree, view, model, variants)
-
-                    def J(res):
-                        return round(judge(ref, res, view, mode=lighting, lighting=light, size=(960, 540),
-                                           heatmap=False).jod, 4)
-
-                    for b in (0.03, 0.08, 0.2):
-                        t0 = time.perf_counter()
-                        pres, _ = plod_mesh(tree, pk, view, cfg, max(int(b * T), 1))
-                        target = len(pres[1])
-                        row = dict(mesh=name, gaze=g, lighting=lighting, budget=b, tris=target, perceptual=J(pres))
-                        for metric in ("size", "geometric"):
-                            row[metric] = J(plod_mesh(tree, optim.score(tree, view, None, metric), view, cfg, target)[0])
-                        for vn, keys in pr.items():
-                            m, _ = plod_mesh(tree, keys, view, cfg, target)
-                            row[vn] = J(m)
-                            row[vn + "_tris"] = len(m[1])
-                        for peer in PEERS:
-                            row[peer] = J(mesh.peer(peer, lighting, target))
-                        row["s"] = round(time.perf_counter() - t0, 1)
-                        print(json.dumps(row), flush=True)
-                        out.write(json.dumps(row) + "\n")
-                        out.flush()
+                view = _view(mesh, d, g, "relit", cfg, True)
+                J = judge_fn(mesh, view, "relit")
+                pr = priorities(tree, view, model, variants)
+                for b in (0.03, 0.08, 0.2):
+                    t0 = time.perf_counter()
+                    row, target = budget_row(tree, view, cfg, b, J, mesh=name, gaze=g, lighting="relit")
+                    for vn, keys in pr.items():
+                        m, _ = plod_mesh(tree, keys, view, cfg, target)
+                        row[vn] = J(m)
+                        row[vn + "_tris"] = len(m[1])
+                    for peer in PEERS:
+                        row[peer] = J(mesh.peer(peer, "relit", target))
+                    row["s"] = round(time.perf_counter() - t0, 1)
+                    emit(out, row)
 
 
 if __name__ == "__main__":
