@@ -4,8 +4,9 @@ Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (b
 by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``; an empty ``PLOD_CACHE``: no cache) -> view
 (default: the object subtends about 30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node
 keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut``; with
-``--cull-back-faces`` ``optim.visible_budget_cut``) -> ``optim.extract`` (and ``optim.drop_back_faces``) -> write ``--out`` atomically (never over the input; every output path is checked
-by ``experiments._paths.check_output`` before any work).
+``--cull-back-faces`` ``optim.visible_budget_cut``) -> ``optim.extract`` (and ``optim.drop_back_faces``)
+-> write ``--out`` atomically (never over the input; every output path is checked by
+``experiments._paths.check_output`` before any work).
 
 A mesh of extreme size (bounding-box diagonal outside 1e-6 .. 1e6 object units) is scaled by an exact
 power of two for the tree, view and keys, and the output scaled back (``unit_exponent``): plod's
@@ -371,7 +372,9 @@ def simplify(args) -> dict:
         mesh = _timed(t, "extract", optim.extract, tree, cut)
         if margin is not None:
             mesh = _timed(t, "cull", optim.drop_back_faces, mesh, view, margin)
-    v2, f2, c2, n2 = (*mesh, None) if margin is None else mesh
+    from experiments.render import mesh_parts  # light: numpy only at import
+
+    v2, f2, c2, n2 = mesh_parts(mesh)  # normals only with --cull-back-faces
     if margin is not None and len(f2) == 0:
         raise PlodError("every triangle of the cut faces away from the eye: nothing to write (check --eye)")
     if unit_exp:
@@ -387,8 +390,8 @@ def simplify(args) -> dict:
     distance = float(pkeys[folded].max()) if folded.any() else 0.0
     rendered = None
     if render_path is not None:
-        rendered = _timed(t, "render", _render, render_path, render_size, tree,
-                          (v2, f2, c2) if n2 is None else (v2, f2, c2, n2), view, args, distance, mesh_path)
+        rendered = _timed(t, "render", _render, render_path, render_size, tree, (v2, f2, c2, n2), view, args,
+                          distance, mesh_path)
     return {
         "mesh": str(mesh_path),
         "input_triangles": int(tree.n_triangles),

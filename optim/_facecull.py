@@ -22,7 +22,7 @@ import numpy as np
 
 from pmetric import PlodError
 
-from ._mesh import corner_columns
+from ._mesh import face_normal_columns
 
 __all__ = ["VisibleCut", "facing_away", "drop_back_faces", "visible_budget_cut"]
 
@@ -53,16 +53,15 @@ def facing_away(vertices, faces, view_or_eye, margin_deg: float = 0.0) -> np.nda
     f = np.asarray(faces)
     if f.size == 0:
         return np.zeros(0, bool)
-    return _away(np.asarray(vertices, np.float64), f, eye, m)
+    return _away(*face_normal_columns(vertices, f), eye, m)
 
 
-def _away(v: np.ndarray, f: np.ndarray, eye: np.ndarray, margin_deg: float) -> np.ndarray:
-    """:func:`facing_away` of float64 ``v`` (V, 3), int ``f`` (T, 3) (non-empty), checked eye and margin:
-    ``n . (eye - a) < -sin(margin) |n| |eye - a|`` with ``n = (b - a) x (c - a)`` (exactly 0 for a
-    triangle with two equal corners). One gather per coordinate and corner and the arithmetic by columns
-    (about 4 ms for 200k triangles on one core, against 11 ms for ``np.cross`` and ``einsum`` on (T, 3) rows)."""
-    (ax, ay, az), (ux, uy, uz), (wx, wy, wz) = corner_columns(v, f)
-    nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+def _away(p0, n, eye: np.ndarray, margin_deg: float) -> np.ndarray:
+    """:func:`facing_away` from :func:`optim._mesh.face_normal_columns`'s first corners ``p0`` and normals
+    ``n`` (three (T,) float64 columns each), a checked eye and margin: ``n . (eye - a) < -sin(margin) |n|
+    |eye - a|`` (``n`` exactly 0 for a triangle with two equal corners). By columns: about 4 ms for 200k
+    triangles on one core, against 11 ms for ``np.cross`` and ``einsum`` on (T, 3) rows."""
+    (ax, ay, az), (nx, ny, nz) = p0, n
     dx, dy, dz = eye[0] - ax, eye[1] - ay, eye[2] - az
     dot = nx * dx + ny * dy + nz * dz
     if margin_deg == 0.0:
@@ -85,7 +84,7 @@ def _front_count(tree, cut, eye: np.ndarray, margin_deg: float):
         v, f = _representatives(tree, parts[0]), parts[1]
     if f.size == 0:
         return 0, parts
-    return int(len(f) - np.count_nonzero(_away(np.asarray(v, np.float64), f, eye, margin_deg))), parts
+    return int(len(f) - np.count_nonzero(_away(*face_normal_columns(v, f), eye, margin_deg))), parts
 
 
 def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
@@ -98,12 +97,15 @@ def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
     from ._normal_cube import _unit
     from ._tree import _vertex_normals
 
+    eye, m = _eye(view_or_eye), _check_margin(margin_deg)
     v, f, c = mesh[:3]
     v = np.asarray(v, np.float64)
     f = np.asarray(f)
-    away = facing_away(v, f, view_or_eye, margin_deg)
-    normals = _unit(_vertex_normals(v, f)) if f.size else np.zeros_like(v)
-    return v, f[~away], c, normals
+    if f.size == 0:
+        return v, f, c, np.zeros_like(v)
+    p0, n = face_normal_columns(v, f)  # once, for the facing test and the vertex normals
+    away = _away(p0, n, eye, m)
+    return v, f[~away], c, _unit(_vertex_normals(v, f, np.column_stack(n)))
 
 
 class VisibleCut(NamedTuple):
@@ -133,11 +135,11 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     a closed surface faces away), scales the cut budget by the front-facing share it finds until it has a
     cut that fits and one that does not, then interpolates inside that bracket, aiming at the middle of
     the accepted window, until the front-facing count is within ``tolerance`` (a fraction of ``budget``)
-    below the budget or the bracket is one triangle wide. Each evaluation is one budget cut and a count of its front-facing triangles
-    (the corners read through the cut's boundary nodes, no mesh built; milliseconds per 10^5 triangles);
-    the cut returned is extracted once. ``hint``: a cut budget to try first (for a moving camera, the previous frame's
-    ``cut_budget``: the front-facing share changes little between frames, so the search often ends at
-    its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
+    below the budget or the bracket is one triangle wide. Each evaluation is one budget cut and a count of
+    its front-facing triangles (the corners read through the cut's boundary nodes, no mesh built;
+    milliseconds per 10^5 triangles); the returned cut's mesh is finished from those arrays. ``hint``: a
+    cut budget to try first (for a moving camera, the previous frame's ``cut_budget``: the front-facing
+    share changes little between frames, so the search often ends at its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
     (:func:`drop_back_faces`)."""
     from ._cut import _check_budget, _mesh_from_boundary, budget_cut, extract
 
@@ -149,17 +151,17 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
 
     eye, margin = _eye(view_or_eye), _check_margin(margin_deg)
 
-    kept = {}  # the boundary arrays of the largest fitting cut so far: its mesh is finished from them
+    fits = (None, None)  # (b, boundary arrays) of the last cut found to fit: every one is the new lo
 
     def at(b):  # (cut, its front-facing triangles); the mesh is made for the one returned only
+        nonlocal fits
         b = int(min(max(b, 0), total))
         if b not in tried:
             cut = budget_cut(tree, keys, b, monotone=monotone)
             n, parts = _front_count(tree, cut, eye, margin)
             tried[b] = (cut, n)
-            if n <= budget and b >= max(kept, default=-1):
-                kept.clear()
-                kept[b] = parts
+            if n <= budget:
+                fits = (b, parts)
         return tried[b]
 
     if hint is not None:
@@ -219,7 +221,7 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     if lo not in tried:
         at(lo)
     cut, n = tried[lo]
-    parts = kept.get(lo)
+    parts = fits[1] if fits[0] == lo else None
     mesh = drop_back_faces(_mesh_from_boundary(tree, *parts)[:3] if parts is not None else extract(tree, cut), eye,
                            margin)
     return VisibleCut(cut, mesh, n, lo, len(tried), reason)

@@ -100,26 +100,26 @@ def corner_sum(f: np.ndarray, per_face: np.ndarray, n_vertices: int) -> np.ndarr
     return out
 
 
-def corner_columns(v: np.ndarray, f: np.ndarray):
-    """``(p0, e1, e2)``, each a tuple of three (T,) float64 coordinate columns: the first corner of every
-    face, and its edges to the second and third corners (one gather per coordinate and corner)."""
+def face_normal_columns(v: np.ndarray, f: np.ndarray):
+    """``(p0, n)``, each a tuple of three (T,) float64 coordinate columns: the first corner of every face
+    and its unnormalised normal cross(v1 - v0, v2 - v0) (length = 2 x area, object units^2). One gather
+    per coordinate and corner: 1.6x faster than gathering (T, 3, 3) corner rows."""
     v = np.asarray(v, dtype=np.float64)
     f = np.asarray(f)
     cols = [np.ascontiguousarray(v[:, k]) for k in range(3)]
     f0, f1, f2 = (np.ascontiguousarray(f[:, k]) for k in range(3))
     p0 = tuple(c.take(f0) for c in cols)
-    return (p0, tuple(c.take(f1) - a for c, a in zip(cols, p0)), tuple(c.take(f2) - a for c, a in zip(cols, p0)))
+    ax, ay, az = (c.take(f1) - a for c, a in zip(cols, p0))
+    bx, by, bz = (c.take(f2) - a for c, a in zip(cols, p0))
+    return p0, (ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx)
 
 
 def face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Unnormalised face normals (T, 3) float64: cross(v1 - v0, v2 - v0), length = 2 x area (object units^2).
-    Computed by coordinate columns (one gather per coordinate and corner: 1.6x faster than gathering
-    (T, 3, 3) corner rows; the same values)."""
-    _, (ax, ay, az), (bx, by, bz) = corner_columns(v, f)
+    """Unnormalised face normals (T, 3) float64: cross(v1 - v0, v2 - v0), length = 2 x area (object units^2)
+    (:func:`face_normal_columns` as rows)."""
     out = np.empty((len(f), 3))
-    out[:, 0] = ay * bz - az * by
-    out[:, 1] = az * bx - ax * bz
-    out[:, 2] = ax * by - ay * bx
+    for k, col in enumerate(face_normal_columns(v, f)[1]):
+        out[:, k] = col
     return out
 
 

@@ -27,8 +27,9 @@ default) on a CPU backend with few cores (:func:`_host_gathers`) runs one XLA pr
 gathers (:func:`_table_inputs`: table-word positions, the key-table index of the own contrast, the
 silhouette contrast, theta, the band, frustum cull) and does the gathers in numpy
 (:func:`_table_keys_host`): XLA:CPU fuses index arithmetic into gather loops as scalar code; on a GPU
-or four or more cores the XLA programs with their gathers are faster and run instead (same keys). The silhouette nodes' table indices come from one more XLA program over those nodes
-alone (:func:`_silhouette_indices`, about a fifth of the nodes). All chunks are dispatched before any
+or four or more cores the XLA programs with their gathers are faster and run instead (same keys). The
+silhouette nodes' table indices come from one more XLA program over those nodes alone
+(:func:`_silhouette_indices`, about a fifth of the nodes). All chunks are dispatched before any
 result is read, with ``jax.jit`` (asynchronous; ``eqx.filter_jit`` blocks on each call's result), so
 numpy's work on one chunk overlaps XLA's on the next. Speed: see ``reports/bench_optim.md``.
 """
