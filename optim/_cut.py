@@ -321,10 +321,10 @@ def _extract_parts(tree, unf):
     return _mesh_from_boundary(tree, *parts)
 
 
-def _mesh_from_boundary(tree, bnd, fb, keep):
+def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
     """Second stage of :func:`extract`: the mesh ``(vertices, faces, colors, keep)`` of
     :func:`_boundary_corners`'s arrays (the boundary nodes the corners use, named and ordered by their
-    smallest input vertex)."""
+    smallest input vertex). ``rep``: :func:`_representatives` of ``bnd`` when already made."""
     V, nb = tree.n_vertices, bnd.size
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
@@ -335,7 +335,7 @@ def _mesh_from_boundary(tree, bnd, fb, keep):
     newidx[srt] = np.arange(srt.size, dtype=np.int32)
     faces = newidx.take(fb)
     nodes = bnd.take(srt)
-    verts = _representatives(tree, nodes)
+    verts = _representatives(tree, nodes) if rep is None else _take_rows(rep, srt)
     colors = None
     if tree.color is not None:
         colors = tree.color.take(nodes, axis=0)

@@ -73,8 +73,10 @@ def _away(p0, n, eye: np.ndarray, margin_deg: float) -> np.ndarray:
 def _front_count(tree, cut, eye: np.ndarray, margin_deg: float):
     """``(count, parts)``: the front-facing triangles of ``optim.extract(tree, cut)`` (the count
     :func:`drop_back_faces` keeps), without building the mesh: the same corner positions, read through
-    the cut's boundary nodes (``parts``, :func:`optim._cut._boundary_corners`'s arrays, from which the mesh
-    is finished; None when the cut took extract's reference path)."""
+    the cut's boundary nodes. ``parts``: :func:`optim._cut._boundary_corners`'s arrays ``(bnd, fb, keep)``
+    and what the count made from them, the boundary nodes' positions ``rep`` (nb, 3) and the kept
+    triangles' normal columns ``n`` and ``away`` flags (the mesh is finished from them by
+    :func:`_finish`); None when the cut took extract's reference path."""
     from ._cut import _boundary_corners, _representatives, extract
 
     parts = _boundary_corners(tree, cut.unfolded)
@@ -83,8 +85,30 @@ def _front_count(tree, cut, eye: np.ndarray, margin_deg: float):
     else:
         v, f = _representatives(tree, parts[0]), parts[1]
     if f.size == 0:
-        return 0, parts
-    return int(len(f) - np.count_nonzero(_away(*face_normal_columns(v, f), eye, margin_deg))), parts
+        return 0, None
+    p0, n = face_normal_columns(v, f)
+    away = _away(p0, n, eye, margin_deg)
+    if parts is not None:
+        parts = parts + (v, n, away)
+    return int(len(f) - np.count_nonzero(away)), parts
+
+
+def _finish(tree, bnd, fb, keep, rep, n, away):
+    """:func:`drop_back_faces` of the cut counted by :func:`_front_count` (its ``parts``), reusing the count's
+    positions, face normals and facing flags (the same values: the faces' corners are the same points)."""
+    from ._cut import _mesh_from_boundary
+
+    v, f, c, _ = _mesh_from_boundary(tree, bnd, fb, keep, rep=rep)
+    return _without_back_faces(np.asarray(v, np.float64), f, c, n, away)
+
+
+def _without_back_faces(v, f, c, n, away):
+    """The mesh ``(v, f, c)`` without its faces flagged ``away``, and the unit vertex normals of all its faces
+    from their normal columns ``n`` (the tail of :func:`drop_back_faces`)."""
+    from ._normal_cube import _unit
+    from ._tree import _vertex_normals
+
+    return v, f[~away], c, _unit(_vertex_normals(v, f, np.column_stack(n)))
 
 
 def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
@@ -94,9 +118,6 @@ def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
     are the unit area-weighted vertex normals of the mesh *with* its back faces, so that a renderer
     shading from them draws exactly the full mesh's image (recomputing normals from the remaining faces
     would tilt the silhouette vertices' normals)."""
-    from ._normal_cube import _unit
-    from ._tree import _vertex_normals
-
     eye, m = _eye(view_or_eye), _check_margin(margin_deg)
     v, f, c = mesh[:3]
     v = np.asarray(v, np.float64)
@@ -104,8 +125,7 @@ def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
     if f.size == 0:
         return v, f, c, np.zeros_like(v)
     p0, n = face_normal_columns(v, f)  # once, for the facing test and the vertex normals
-    away = _away(p0, n, eye, m)
-    return v, f[~away], c, _unit(_vertex_normals(v, f, np.column_stack(n)))
+    return _without_back_faces(v, f, c, n, _away(p0, n, eye, m))
 
 
 class VisibleCut(NamedTuple):
@@ -141,7 +161,7 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     cut budget to try first (for a moving camera, the previous frame's ``cut_budget``: the front-facing
     share changes little between frames, so the search often ends at its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
     (:func:`drop_back_faces`)."""
-    from ._cut import _check_budget, _mesh_from_boundary, budget_cut, extract
+    from ._cut import _check_budget, budget_cut, extract
 
     budget = _check_budget(budget)
     if not (0.0 <= tolerance < 1.0) or int(max_evaluations) < 1:
@@ -222,6 +242,5 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         at(lo)
     cut, n = tried[lo]
     parts = fits[1] if fits[0] == lo else None
-    mesh = drop_back_faces(_mesh_from_boundary(tree, *parts)[:3] if parts is not None else extract(tree, cut), eye,
-                           margin)
+    mesh = _finish(tree, *parts) if parts is not None else drop_back_faces(extract(tree, cut), eye, margin)
     return VisibleCut(cut, mesh, n, lo, len(tried), reason)

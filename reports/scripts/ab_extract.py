@@ -2,37 +2,26 @@
 
     .venv/bin/python reports/scripts/ab_extract.py [REV]   (default REV: HEAD~1)
 
-The bench_optim meshes (1M torus, 1.3M sphere), its 8 relit views, budget cuts of 10 % and 20 % of the
-input triangles; per cut the least of 5 calls of each version, alternating; prints the median ratio
-(old / new) and checks that both return identical arrays.
+The other commit's ``optim/`` is loaded as ``optim_old``. The bench_optim meshes (1M torus, 1.3M
+sphere), its 8 relit views, budget cuts of 10 % and 20 % of the input triangles; per cut the least of 5
+calls of each version, alternating; prints the median ratio (old / new) and checks that both return
+identical arrays.
 """
-import importlib.util
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 
-import optim  # noqa: E402
+from _ab import BENCH_MESHES, optim, optim_at  # noqa: E402
 from experiments.bench_optim import _views  # noqa: E402
 
 rev = sys.argv[1] if len(sys.argv) > 1 else "HEAD~1"
-src = subprocess.run(["git", "show", f"{rev}:optim/_cut.py"], cwd=ROOT, capture_output=True, text=True,
-                     check=True).stdout.replace("from ._levels import", "from optim._levels import")
-path = Path(tempfile.mkdtemp()) / "_cut_old.py"
-path.write_text(src)
-spec = importlib.util.spec_from_file_location("_cut_old", path)
-old = importlib.util.module_from_spec(spec)
-sys.modules["_cut_old"] = old
-spec.loader.exec_module(old)
+old = optim_at(rev)
 
-for name, make in (("bumpy_torus(1000, 500)", lambda: optim.bumpy_torus(1000, 500, seed=0)),
-                   ("bumpy_sphere(8)", lambda: optim.bumpy_sphere(8, seed=0)[:2])):
+for name, make in BENCH_MESHES:
     v, f = make()
     tree = optim.build_tree(v, f)
     for frac in (0.1, 0.2):

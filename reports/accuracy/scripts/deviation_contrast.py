@@ -27,7 +27,12 @@ def dev_columns(tree, light, scale):
     axis, half = normal_cones(tree)
     rms = rms_dev(tree)
     r = np.maximum(np.asarray(tree.radius, float), 1e-30)
-    tilt = np.minimum(np.arctan(scale * rms / r), half.astype(float))
+    return tilt_columns(tree, light, base, axis, np.minimum(np.arctan(scale * rms / r), half.astype(float)))
+
+
+def tilt_columns(tree, light, base, axis, tilt):
+    """``base`` (the relit columns) with fold_delta no more than the Lambert range over normals within
+    ``tilt`` (N,) rad of ``axis`` (N, 3), times the node's albedo range."""
     lo, hi, mid = _lambert_range(axis, tilt, light)
     a_lo, a_hi, a_mid = _albedo(tree)
     delta = np.maximum(a_hi * hi - a_mid * mid, a_mid * mid - a_lo * lo)

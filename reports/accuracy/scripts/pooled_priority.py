@@ -101,6 +101,29 @@ def budget_row(tree, view, cfg, b, J, **head):
     return row, target
 
 
+def held_out_cells(names, cfg):
+    """Yield ``(name, mesh, view, gaze, J)`` over the held-out cells: each mesh of ``names``, one random
+    view, gaze 0 and 8 deg, relit, with its judge ``J``."""
+    for name in names:
+        mesh = held_out_mesh(name)
+        for d in view_directions(1, 77, name):
+            for g in (0.0, 8.0):
+                view = _view(mesh, d, g, "relit", cfg, True)
+                yield name, mesh, view, g, judge_fn(mesh, view, "relit")
+
+
+def budget_rows(out, tree, view, cfg, J, variants, **head):
+    """Emit one row per budget (3, 8, 20 %): :func:`budget_row` plus ``row[label] = J(make(target))``
+    for each ``label: make`` of ``variants`` (``make(target)`` -> the variant's mesh at the drawn count)."""
+    for b in (0.03, 0.08, 0.2):
+        t0 = time.perf_counter()
+        row, target = budget_row(tree, view, cfg, b, J, **head)
+        for label, make in variants.items():
+            row[label] = J(make(target))
+        row["s"] = round(time.perf_counter() - t0, 1)
+        emit(out, row)
+
+
 def emit(out, row):
     print(json.dumps(row), flush=True)
     out.write(json.dumps(row) + "\n")
