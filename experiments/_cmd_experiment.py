@@ -35,9 +35,13 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+# config ``kind`` -> the module under experiments/ whose ``run_config(path, out, progress)`` runs it
+KINDS = ("terrain", "terrain_motion", "accuracy_motion")
+
+
 def _config_kind(path) -> str | None:
-    """The config's top-level ``kind`` (``"terrain"`` runs :func:`experiments.terrain.run_config`), or None;
-    a file that does not parse is left to the loader, which names the problem."""
+    """The config's top-level ``kind`` (one of :data:`KINDS` runs ``experiments.<kind>.run_config``), or
+    None; a file that does not parse is left to the loader, which names the problem."""
     import tomllib
 
     try:
@@ -56,10 +60,12 @@ def run(args) -> int:
 
     from pathlib import Path
 
-    if _config_kind(args.config) == "terrain":  # seed 000's terrain flight (experiments/terrain.py)
-        from experiments.terrain import run_config
+    kind = _config_kind(args.config)
+    if kind in KINDS:  # an experiment of its own module (its run_config), not a sweep of the runner
+        import importlib
 
-        with rich_progress("terrain") as cb:
+        run_config = importlib.import_module(f"experiments.{kind}").run_config
+        with rich_progress(kind.replace("_", " ")) as cb:
             out = run_config(args.config, out=None if args.out is None else Path(args.out).resolve(), progress=cb)
         print(f"wrote {out}")
         return 0

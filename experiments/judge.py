@@ -182,23 +182,33 @@ def _metric(width_px: int, height_px: int, height_m: float, distance_m: float, p
 
 
 def luminance_image(img: np.ndarray, display) -> np.ndarray:
-    """(H, W) float32 luminance (cd/m2) a ``pmetric.Display`` emits for an sRGB image (H, W, 3) in [0, 1]."""
+    """(...) float32 luminance (cd/m2) a ``pmetric.Display`` emits for sRGB pixels (..., 3) in [0, 1]: an image
+    (H, W, 3) or frames (F, H, W, 3)."""
     return np.array(display.luminance(np.clip(np.asarray(img, dtype=np.float32), 0.0, 1.0)), dtype=np.float32)
 
 
-def fovvdp(reference: np.ndarray, test: np.ndarray, view, *, heatmap: bool = True) -> tuple[float, np.ndarray | None]:
-    """FovVideoVDP [Man21] of two renderings (H, W, 3) sRGB in [0, 1] of ``view``: (JOD, raw map or None).
+def fovvdp(reference: np.ndarray, test: np.ndarray, view, *, heatmap: bool = True,
+           fps: float | None = None) -> tuple[float, np.ndarray | None]:
+    """FovVideoVDP [Man21] of two renderings of ``view``: (JOD, raw map or None).
 
-    Foveated at :func:`fixation_px`; the images are turned into luminance (cd/m2) by the view's
-    ``pmetric.Display`` (its transfer function, peak luminance and black level) and shown on that
-    display's geometry scaled to the image size (:func:`pixels_per_degree`). Runs on CUDA when torch sees
-    a GPU, else on the CPU.
+    Images: (H, W, 3) sRGB in [0, 1], judged as still images (map (H, W)). Videos: (F, H, W, 3) frames
+    shown at ``fps`` (Hz, required for a video and only for one), judged with FovVideoVDP's temporal
+    channels, so a change that moves across the screen is weighed by the spatio-temporal CSF (map
+    (F, H, W)). Foveated at :func:`fixation_px` (a fixed fixation for every frame); the images are turned
+    into luminance (cd/m2) by the view's ``pmetric.Display`` (its transfer function, peak luminance and
+    black level) and shown on that display's geometry scaled to the image size
+    (:func:`pixels_per_degree`). Runs on CUDA when torch sees a GPU, else on the CPU.
     """
     ref = np.asarray(reference, dtype=np.float32)
     tst = np.asarray(test, dtype=np.float32)
-    if ref.shape != tst.shape or ref.ndim != 3 or ref.shape[2] != 3:
-        raise PlodError(f"fovvdp: images must both be (H, W, 3), got {ref.shape} and {tst.shape}")
-    h, w = ref.shape[:2]
+    video = ref.ndim == 4
+    if ref.shape != tst.shape or ref.ndim not in (3, 4) or ref.shape[-1] != 3:
+        raise PlodError(f"fovvdp: images must both be (H, W, 3) or videos (F, H, W, 3), got {ref.shape} and "
+                        f"{tst.shape}")
+    if video != (fps is not None) or (video and not (math.isfinite(fps) and fps > 0)):
+        raise PlodError(f"fovvdp: a video needs fps > 0 and a still image none, got shape {ref.shape} and "
+                        f"fps={fps!r}")
+    h, w = ref.shape[-3:-1]
     _, height_m, dist = image_geometry(view, (w, h))
     disp = view.display
     dev = _device()
@@ -209,9 +219,33 @@ def fovvdp(reference: np.ndarray, test: np.ndarray, view, *, heatmap: bool = Tru
     fix = torch.tensor([fx - 0.5, fy - 0.5], dtype=torch.float32)  # pyfvvdp: pixel index, centre at +0.5
     with torch.no_grad(), _QuietRootLogger():
         q, stats = metric.predict(torch.from_numpy(luminance_image(tst, disp)),
-                                  torch.from_numpy(luminance_image(ref, disp)), dim_order="HW", fixation_point=fix)
-    vmap = stats["heatmap"][0, 0, 0].float().cpu().numpy() if heatmap else None
+                                  torch.from_numpy(luminance_image(ref, disp)), dim_order="FHW" if video else "HW",
+                                  frames_per_second=float(fps) if video else 0, fixation_point=fix)
+    vmap = None
+    if heatmap:
+        vmap = stats["heatmap"][0, 0].float().cpu().numpy()
+        vmap = vmap if video else vmap[0]
     return float(q), vmap
+
+
+def fovvdp_clip(reference_frames, test_frames, view, fps: float, *, still_every: int = 1,
+                heatmap: bool = False) -> tuple[float, list[float], np.ndarray | None]:
+    """A clip judged two ways: ``(video JOD, still JODs, map)``. ``reference_frames``, ``test_frames``:
+    (F, H, W, 3) sRGB renderings of the same camera path; ``view``: any frame's view (its display,
+    geometry and gaze fix the fixation, held for the whole clip); ``fps`` (Hz).
+
+    The video is :func:`fovvdp` with FovVideoVDP's temporal channels (a change that moves or pops is
+    weighed by the spatio-temporal CSF, with the eye fixed on the gaze point); the stills judge every
+    ``still_every``-th frame alone (what an eye that pursues the motion sees, about). ``map``: the
+    video's (F, H, W) map with ``heatmap``, else None.
+    """
+    ref = np.asarray(reference_frames, dtype=np.float32)
+    tst = np.asarray(test_frames, dtype=np.float32)
+    if int(still_every) < 1:
+        raise PlodError(f"fovvdp_clip: still_every must be >= 1, got {still_every!r}")
+    jod, vmap = fovvdp(ref, tst, view, fps=fps, heatmap=heatmap)
+    still = [fovvdp(a, b, view, heatmap=False)[0] for a, b in zip(ref[::int(still_every)], tst[::int(still_every)])]
+    return jod, still, vmap
 
 
 # ----------------------------------------------------------------------------------------------- judge

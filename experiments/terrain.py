@@ -302,18 +302,23 @@ def _save_fig4(path, grid, cfg):
     _figures.save_png(fig, path)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="terrain", description=__doc__.splitlines()[0])
+def config_main(argv, prog: str, description: str, run, written: str) -> int:
+    """``python -m experiments.<prog> CONFIG [--out DIR]``: ``run(config, out, progress)`` with a rich
+    progress bar; prints the path of the report ``written`` in the output folder."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
     ap.add_argument("config")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     from experiments._progress import rich_progress
 
-    with rich_progress("terrain") as cb:
-        out = run_config(a.config, a.out, cb)
-    print(f"wrote {out / 'table1.md'}")
+    with rich_progress(prog.replace("_", " ")) as cb:
+        out = run(a.config, a.out, cb)
+    print(f"wrote {out / written}")
     return 0
 
+
+def main(argv=None) -> int:
+    return config_main(argv, "terrain", __doc__.splitlines()[0], run_config, "table1.md")
 
 if __name__ == "__main__":
     run_script(main)
