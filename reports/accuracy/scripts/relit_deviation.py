@@ -3,7 +3,9 @@ tilt from the node's RMS surface deviation (``deviation_contrast.py``'s ``dev`` 
 whole normal cone. Relit cells on meshes the tests and the sweep do not use; the imperceptible cut too
 (it must stay >= 9.8 JOD).
 
-    .venv/bin/python reports/accuracy/scripts/relit_deviation.py OUT.jsonl [meshes] [scales, default 0.5,1,2]
+    .venv/bin/python reports/accuracy/scripts/relit_deviation.py OUT.jsonl [meshes] [variants, default 0.5,1,2]
+
+Variants: a number s (the ``dev{s}`` tilt) or ``ring`` (``ring_cone.py``: the cone widened to the 2-ring).
 """
 import sys
 from pathlib import Path
@@ -14,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import optim  # noqa: E402
 from deviation_contrast import dev_columns  # noqa: E402
+from ring_cone import ring_columns  # noqa: E402
 from pooled_priority import HELD_OUT, SIZE, budget_rows, emit, held_out_cells  # noqa: E402
 from optim._relight import light_key  # noqa: E402
 from experiments.accuracy import DEFAULTS, plod_mesh  # noqa: E402
@@ -24,7 +27,7 @@ SCALES = (0.5, 1.0, 2.0)
 def main():
     out = open(sys.argv[1], "a")
     names = sys.argv[2].split(",") if len(sys.argv) > 2 and sys.argv[2] else HELD_OUT
-    scales = tuple(float(x) for x in sys.argv[3].split(",")) if len(sys.argv) > 3 else SCALES
+    scales = tuple(sys.argv[3].split(",")) if len(sys.argv) > 3 else SCALES
     cfg = dict(DEFAULTS, face_cull=True, size=list(SIZE))
     light = optim.Lighting()
     trees = {}
@@ -33,8 +36,10 @@ def main():
             trees = {name: {"perceptual": mesh.tree["relit"]}}
             for s in scales:
                 t = optim.build_tree(mesh.v, mesh.f, mesh.c)
-                t._derived[f"relight.columns.{light_key(light)}"] = dev_columns(t, light, s)
-                trees[name][f"dev{s:g}"] = t
+                ring = s == "ring"
+                t._derived[f"relight.columns.{light_key(light)}"] = (ring_columns(t, light) if ring else
+                                                                     dev_columns(t, light, float(s)))
+                trees[name]["ring" if ring else f"dev{float(s):g}"] = t
         row = dict(mesh=name, gaze=g, budget=None)
         for kn, tr in trees[name].items():
             k = optim.score(tr, view)
