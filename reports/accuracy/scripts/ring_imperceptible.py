@@ -3,7 +3,9 @@ accuracy sweep's relit cells (face culling on, as ``configs/accuracy_facecull.to
 triangles against today's cut and against the cut before lights (``reports/accuracy/before/results.jsonl``,
 the count the issue's "no more triangles than today's cut" refers to).
 
-    OMP_NUM_THREADS=1 PYOPENGL_PLATFORM=egl .venv/bin/python reports/accuracy/scripts/ring_imperceptible.py OUT.jsonl
+    OMP_NUM_THREADS=1 PYOPENGL_PLATFORM=egl .venv/bin/python reports/accuracy/scripts/ring_imperceptible.py OUT.jsonl [tight]
+
+``tight``: ``ring_cone.ring_half_tight`` (two stacked angles per neighbour instead of three).
 """
 import json
 import sys
@@ -27,6 +29,7 @@ def main():
         if r["method"] == "imperceptible":
             before[r["cell"]] = r["triangles"]
     out = open(sys.argv[1], "a")
+    tight = len(sys.argv) > 2 and sys.argv[2] == "tight"
     light = optim.Lighting()
     meshes = load_meshes(cfg)
     trees = {}
@@ -34,7 +37,7 @@ def main():
         if name not in trees:
             spec = next(m for m in meshes if m[0] == name)
             mesh = _Mesh(*spec)
-            trees = {name: (mesh, ring_tree(mesh.v, mesh.f, mesh.c, light))}
+            trees = {name: (mesh, ring_tree(mesh.v, mesh.f, mesh.c, light, tight))}
         mesh, rt = trees[name]
         view = _view(mesh, d, g, "relit", cfg, True)
         row = {"cell": _cell_id(name, vi, g, "relit"), "before_tris": before.get(_cell_id(name, vi, g, "relit"))}
