@@ -141,18 +141,30 @@ class _KeyTable(NamedTuple):
     band: tuple  # (M, f*): max over f of f S(f, 0) (cycles/deg) and where it is (cycles/deg)
 
 
-def band_constant(model) -> tuple:
+#: Retinal velocities (deg/s) over which :func:`band_constant` bounds a moving band: 0 and a log grid
+#: to 10^4 deg/s (beyond it nothing stays visible: the motion table's last cell is 10^5 deg/s per deg).
+_BAND_VELOCITIES = np.concatenate([[0.0], np.logspace(-2.0, 4.0, 49)])
+
+
+def band_constant(model, motion: bool = False) -> tuple:
     """``(M, f*)``: ``M = max_f f S(f, 0)`` and its frequency ``f*`` (cycles/deg) for ``model``, on a log
     grid of 2049 frequencies over [1e-2, 10^2.5] cycles/deg; M rounded up by 1 % (the grid step is
     0.5 %), f* by one grid step. A band of width ``w`` deg and contrast ``c`` is imperceptible beyond
     ``2 c w M`` times the viewing distance whatever channel sees it, and the channel that attains it
-    is at ``f*`` (see :func:`thin_band_key`)."""
+    is at ``f*`` (see :func:`thin_band_key`). With ``motion``: ``M`` the largest over the retinal
+    velocities ``_BAND_VELOCITIES`` too (a moving band seen k times farther moves at v / k, any of them)
+    and ``f*`` the highest of the per-velocity peaks, so the thin-band key stays a bound for moving
+    folds (a band-pass temporal response can raise S above its static value)."""
     f = np.logspace(-2.0, 2.5, 2049)
-    sens = np.asarray(jax.jit(lambda m, x: m.sensitivity(x, jnp.zeros_like(x)))(model, jnp.asarray(f, jnp.float32)),
-                      np.float64)
-    fs = np.where(np.isfinite(sens), f * sens, 0.0)
-    j = int(np.argmax(fs))
-    return float(fs[j]) * 1.01, float(f[min(j + 1, len(f) - 1)])
+    vs = _BAND_VELOCITIES if motion else np.zeros(1)
+    sens_fn = jax.jit(lambda m, x, v: m.sensitivity(x, jnp.zeros_like(x), v))
+    best, f_star = 0.0, 0.0
+    for v in vs:
+        sens = np.asarray(sens_fn(model, jnp.asarray(f, jnp.float32), jnp.float32(v)), np.float64)
+        fs = np.where(np.isfinite(sens), f * sens, 0.0)
+        j = int(np.argmax(fs))
+        best, f_star = max(best, float(fs[j])), max(f_star, float(f[min(j + 1, len(f) - 1)]))
+    return best * 1.01, f_star
 
 
 def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
@@ -178,6 +190,7 @@ def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
 
 _TABLES: dict = {}
 _BANDS: dict = {}
+_BANDS_MOTION: dict = {}
 
 
 def _model_key(model) -> tuple:
@@ -288,14 +301,14 @@ _MOTION_TABLES: dict = {}
 _NO_MOTION_TABLE: set = set()  # model keys without a shipped motion table (not re-read per view)
 
 
-def _motion_key_table(host: np.ndarray) -> _KeyTable:
+def _motion_key_table(host: np.ndarray, model) -> _KeyTable:
     host.flags.writeable = False
-    return _KeyTable(jnp.asarray(host), host, (0.0, 0.0))
+    return _KeyTable(jnp.asarray(host), host, _model_band(model, motion=True))
 
 
 def _build_motion(model) -> _KeyTable:
     host = _shipped_table(model, motion=True)
-    return _motion_key_table(_motion_table(model) if host is None else host)
+    return _motion_key_table(_motion_table(model) if host is None else host, model)
 
 
 def prepare_motion_table(model) -> None:
@@ -326,12 +339,13 @@ def _motion_table_for(model):
             _NO_MOTION_TABLE.clear()
         _NO_MOTION_TABLE.add(key)
         return None
-    return _per_model(_MOTION_TABLES, model, lambda m: _motion_key_table(host))
+    return _per_model(_MOTION_TABLES, model, lambda m: _motion_key_table(host, m))
 
 
-def _model_band(model) -> tuple:
-    """:func:`band_constant` of ``model``, cached like the key tables."""
-    return _per_model(_BANDS, model, band_constant)
+def _model_band(model, motion: bool = False) -> tuple:
+    """:func:`band_constant` of ``model`` (with ``motion``, over retinal velocities too), cached like the
+    key tables."""
+    return _per_model(_BANDS_MOTION if motion else _BANDS, model, lambda m: band_constant(m, motion))
 
 
 def _ratio_cell(x, theta, grid):
@@ -383,11 +397,9 @@ def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
     t = terms(ch, vp, facing, has_gaze, has_motion, metric)
     if metric == "perceptual":
         c_a, kc = _thin_parts(t.contrast, t.theta, t.band)
-        if table_mode and has_motion:  # the motion table; the thin-band bound is one at velocity 0
-            idx = lambda c: table_index(c, t.theta, t.ecc, t.vel)  # noqa: E731
-            return t.culled, (idx(t.c_own), idx(t.contrast), t.theta, t.silhouette)
-        if table_mode:
-            idx = lambda c, th: table_index(c, th, t.ecc)  # noqa: E731
+        if table_mode:  # with motion, the motion table at velocity / size (the band's key: vel / band)
+            vel = t.vel if has_motion else None
+            idx = lambda c, th: table_index(c, th, t.ecc, vel)  # noqa: E731
             return t.culled, (idx(t.c_own, t.theta), idx(t.contrast, t.theta), idx(c_a, t.theta),
                               idx(t.contrast, t.band), t.theta, t.band, kc, t.silhouette)
         return t.culled, (t.c_own, t.contrast, t.theta, t.band, t.silhouette, t.ecc if has_gaze else None,
@@ -398,9 +410,8 @@ def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
 @eqx.filter_jit
 def _exact_key(model, inputs, metric, has_gaze, has_motion, band_m):
     """``key`` without the key table (``exact=True``, motion, pixel metrics): raw key (C,) float32 >= 0.
-    A separate XLA program: fused with ``terms``, XLA:CPU recomputes shared intermediates. With
-    motion the thin-band bound is not used (``band_m`` is a bound at velocity 0): a silhouette fold
-    keeps its whole-node key."""
+    A separate XLA program: fused with ``terms``, XLA:CPU recomputes shared intermediates. ``band_m``:
+    :func:`band_constant` (with motion, its bound over velocities too)."""
     if metric == "perceptual":
         c_own, c_sil, theta, band, sil, ecc, vel = inputs
         e = ecc if has_gaze else 0.0
@@ -408,12 +419,9 @@ def _exact_key(model, inputs, metric, has_gaze, has_motion, band_m):
         clean = lambda k: jnp.where(jnp.isnan(k), 1e30, jnp.minimum(k, 1e30))  # noqa: E731
         dist = lambda c, th: clean(model.imperceptible_distance(c, th, e, v))  # noqa: E731
         k_own, k_cap = dist(c_own, theta), dist(c_sil, theta)
-        if has_motion:
-            key = jnp.where(sil, jnp.maximum(k_own, k_cap), k_own)
-        else:
-            c_a, kc = _thin_parts(c_sil, theta, band)
-            key = thin_band_key(k_own, k_cap, dist(c_a, theta), dist(c_sil, band), kc * band_m[0],
-                                2.0 * theta * band_m[1], sil)
+        c_a, kc = _thin_parts(c_sil, theta, band)
+        key = thin_band_key(k_own, k_cap, dist(c_a, theta), dist(c_sil, band), kc * band_m[0],
+                            2.0 * theta * band_m[1], sil)
     else:
         key = inputs[0]
     return jnp.maximum(key, 0.0).astype(jnp.float32)
@@ -425,13 +433,6 @@ def _table_keys_device(ktab, band_m, i_own, i_sil, i_a, i_b, theta, band, kc, si
     g = lambda i, th: table_gather(ktab, i, th)  # noqa: E731
     return thin_band_key(g(i_own, theta), g(i_sil, theta), g(i_a, theta), g(i_b, band), kc * band_m[0],
                          2.0 * theta * band_m[1], sil)
-
-
-@jax.jit
-def _motion_keys_device(ktab, i_own, i_sil, theta, sil):
-    """Motion table mode: the keys of :func:`_exact_key` with motion, read from the motion table."""
-    k_own = table_gather(ktab, i_own, theta)
-    return jnp.where(sil, jnp.maximum(k_own, table_gather(ktab, i_sil, theta)), k_own)
 
 
 @functools.partial(jax.jit, static_argnames=("has_gaze",))
@@ -538,15 +539,13 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=None):
         return _table_keys_host(ctx, vp, ktab, has_gaze)
     table = table_device()
     band_m = (0.0, 0.0)
-    if metric == "perceptual" and not has_motion:
-        band_m = ktab.band if ktab is not None else _model_band(model)
+    if metric == "perceptual":
+        band_m = ktab.band if ktab is not None else _model_band(model, motion=has_motion)
     band_m = jnp.asarray(band_m, jnp.float32)
     outs = []
     for ch in ctx.chunks:
         culled, inputs = _key_inputs(ch, vp, facing_flags(ch, vp, table), metric, has_gaze, has_motion, table_mode)
-        if table_mode and has_motion:
-            key = _motion_keys_device(ktab.device, *inputs)
-        elif table_mode:
+        if table_mode:
             key = _table_keys_device(ktab.device, band_m, *inputs)
         else:
             key = _exact_key(model, inputs, metric, has_gaze, has_motion, band_m)

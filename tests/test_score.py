@@ -537,3 +537,47 @@ def test_moving_view_keys_come_from_the_motion_table(sphere_tree, moving_model):
     assert np.median(table[big] / exact[big]) < 1.1
     with pytest.raises(pmetric.PlodError, match="CSFModel"):
         optim.prepare_motion_table("stela")
+
+
+def test_moving_thin_band_key_bounds_every_channel(moving_model):
+    """With motion the silhouette's thin-band key uses the band constant over velocities too
+    (``band_constant(model, motion=True)``), so it still holds the distance of every channel that sees
+    the moving band (half-period s in [w, theta], contrast c w / s, velocity v)."""
+    from optim._score import band_constant, thin_band_key
+
+    model = moving_model
+    m0, f0 = band_constant(model)
+    m_band, f_star = band_constant(model, motion=True)
+    assert m_band >= m0 and f_star >= f0
+    rng = np.random.default_rng(5)
+    n = 64
+    theta = 10 ** rng.uniform(-2, 0.5, n)
+    w = theta * 10 ** rng.uniform(-3, 0, n)
+    c = 10 ** rng.uniform(-2, 0, n)
+    e = rng.choice([0.0, 2.0, 10.0], n)
+    v = rng.choice([0.0, 1.0, 8.0, 40.0], n)
+    d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e, v), np.float64)  # noqa: E731
+    key = thin_band_key(np.zeros(n), d(c, theta), d(c * w / theta, theta), d(c, w),
+                        2 * c * w * m_band, 2 * theta * f_star, np.ones(n, bool), np)
+    for s_frac in np.linspace(0, 1, 41):
+        s = w * (theta / w) ** s_frac
+        assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
+    assert (key <= d(c, theta) * (1 + 1e-6)).all()
+
+
+def test_keys_are_continuous_as_the_motion_stops():
+    """A view whose previous view is almost the same (retinal velocities ~1e-4 deg/s) scores as the
+    still view: the motion table and its thin-band silhouette bound agree with the static ones at rest
+    (before the motion path kept silhouettes at their whole-node key: up to 300x the still key)."""
+    v, f = optim.bumpy_sphere(3, seed=1)[:2]
+    tree = optim.build_tree(v, f)
+    a = View.framing(v, 30.0, (0.3, 0.2, 1.0))
+    eye = a.eye + np.array([1e-7, 0.0, 0.0])
+    b = View(eye=eye, target=a.target, up=a.up, previous=a, dt_s=1 / 60)
+    ks, km = score(tree, a), score(tree, b)
+    live = ks > 0
+    assert live.sum() > 100
+    assert optim.node_terms(tree, b).velocity.max() < 1e-3
+    r = km[live] / ks[live]
+    assert r.min() >= 1 - 1e-4 and r.max() < 1.1  # the motion table's first velocity cell rounds up
+    assert np.median(r) < 1.01
