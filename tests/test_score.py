@@ -210,6 +210,35 @@ def _reference_key(model, t, nodes):
     return np.where(t.silhouette[nodes], np.maximum(k_own, thin), k_own)
 
 
+def _thin_band_cases(seed, velocities=None):
+    """64 random silhouette bands: (theta, w, c, e, v) (deg, deg, contrast, deg, deg/s or zeros)."""
+    rng = np.random.default_rng(seed)
+    n = 64
+    theta = 10 ** rng.uniform(-2, 0.5, n)
+    w = theta * 10 ** rng.uniform(-3, 0, n)
+    c = 10 ** rng.uniform(-2, 0, n)
+    e = rng.choice([0.0, 2.0, 10.0], n)
+    v = np.zeros(n) if velocities is None else rng.choice(velocities, n)
+    return theta, w, c, e, v
+
+
+def _check_thin_band(model, band, cases):
+    """The thin-band key (band constants ``band``) holds every channel's distance (half-period s in
+    [w, theta], contrast c w / s) and is at most the whole node's key; returns it with the distance."""
+    from optim._score import thin_band_key
+
+    m_band, f_star = band
+    theta, w, c, e, v = cases
+    d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e, v), np.float64)  # noqa: E731
+    key = thin_band_key(np.zeros(len(c)), d(c, theta), d(c * w / theta, theta), d(c, w),
+                        2 * c * w * m_band, 2 * theta * f_star, np.ones(len(c), bool), np)
+    for s_frac in np.linspace(0, 1, 41):
+        s = w * (theta / w) ** s_frac
+        assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
+    assert (key <= d(c, theta) * (1 + 1e-6)).all()
+    return d
+
+
 def test_thin_band_key_bounds_every_channel():
     """The silhouette key holds the distance of every channel that sees the band (half-period s in
     [w, theta], contrast c w / s), and is at most the whole node's key."""
@@ -217,22 +246,11 @@ def test_thin_band_key_bounds_every_channel():
 
     model = pmetric.KellyAbstract()
     m_band, f_star = band_constant(model)
-    rng = np.random.default_rng(3)
-    n = 64
-    theta = 10 ** rng.uniform(-2, 0.5, n)
-    w = theta * 10 ** rng.uniform(-3, 0, n)
-    c = 10 ** rng.uniform(-2, 0, n)
-    e = rng.choice([0.0, 2.0, 10.0], n)
-    d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e), np.float64)  # noqa: E731
-    key = thin_band_key(np.zeros(n), d(c, theta), d(c * w / theta, theta), d(c, w),
-                        2 * c * w * m_band, 2 * theta * f_star, np.ones(n, bool), np)
-    for s_frac in np.linspace(0, 1, 41):
-        s = w * (theta / w) ** s_frac
-        assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
-    assert (key <= d(c, theta) * (1 + 1e-6)).all()
+    theta, w, c, e, v = cases = _thin_band_cases(3)
+    d = _check_thin_band(model, (m_band, f_star), cases)
     # a band that spans the node is the whole node: no reduction
-    full = thin_band_key(np.zeros(n), d(c, theta), d(c, theta), d(c, theta), 2 * c * theta * m_band,
-                         2 * theta * f_star, np.ones(n, bool), np)
+    full = thin_band_key(np.zeros(len(c)), d(c, theta), d(c, theta), d(c, theta), 2 * c * theta * m_band,
+                         2 * theta * f_star, np.ones(len(c), bool), np)
     np.testing.assert_allclose(full, d(c, theta), rtol=1e-6)
 
 
@@ -543,26 +561,12 @@ def test_moving_thin_band_key_bounds_every_channel(moving_model):
     """With motion the silhouette's thin-band key uses the band constant over velocities too
     (``band_constant(model, motion=True)``), so it still holds the distance of every channel that sees
     the moving band (half-period s in [w, theta], contrast c w / s, velocity v)."""
-    from optim._score import band_constant, thin_band_key
+    from optim._score import band_constant
 
-    model = moving_model
-    m0, f0 = band_constant(model)
-    m_band, f_star = band_constant(model, motion=True)
+    m0, f0 = band_constant(moving_model)
+    m_band, f_star = band_constant(moving_model, motion=True)
     assert m_band >= m0 and f_star >= f0
-    rng = np.random.default_rng(5)
-    n = 64
-    theta = 10 ** rng.uniform(-2, 0.5, n)
-    w = theta * 10 ** rng.uniform(-3, 0, n)
-    c = 10 ** rng.uniform(-2, 0, n)
-    e = rng.choice([0.0, 2.0, 10.0], n)
-    v = rng.choice([0.0, 1.0, 8.0, 40.0], n)
-    d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e, v), np.float64)  # noqa: E731
-    key = thin_band_key(np.zeros(n), d(c, theta), d(c * w / theta, theta), d(c, w),
-                        2 * c * w * m_band, 2 * theta * f_star, np.ones(n, bool), np)
-    for s_frac in np.linspace(0, 1, 41):
-        s = w * (theta / w) ** s_frac
-        assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
-    assert (key <= d(c, theta) * (1 + 1e-6)).all()
+    _check_thin_band(moving_model, (m_band, f_star), _thin_band_cases(5, [0.0, 1.0, 8.0, 40.0]))
 
 
 def test_keys_are_continuous_as_the_motion_stops():
