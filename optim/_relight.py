@@ -15,7 +15,10 @@ Two things the seeds' pre-lit model [LHNW00 §4; LH01 §5.2] does not see, both 
   colours) times that intensity range; its proxy is lit along the cone's axis; ``fold_delta`` is the
   larger distance of the proxy's value from the range's ends, as for the pre-lit columns. A flat,
   evenly lit region has a zero-width cone and ~0 contrast; a fold that tilts normals toward the light
-  has a wide cone and a nonzero one.
+  has a wide cone and a nonzero one. The fold also changes the vertex normals of its *neighbours*
+  (the faces they share with the node change): :func:`neighbour_normals` holds each neighbour's
+  normal after the fold, exactly, and the columns also bound the shading change at every neighbour
+  (:func:`_neighbour_shading`); a flat panel folded beside a ridge has contrast through the ridge.
 * **Baked colours over the changed triangles** (:func:`region_columns`). Without relighting a renderer
   interpolates the vertex colours (or pre-lit intensities) over each triangle, so a fold changes the
   triangles incident to its vertices, whose colours come from their neighbours too: the range is that
@@ -46,11 +49,11 @@ from __future__ import annotations
 import numpy as np
 
 from ._levels import level_runs
-from ._mesh import face_normals
+from ._mesh import corner_sum, face_normals
 from ._normal_cube import _unit, normal_cells
 from ._tree import Lighting, _srgb_luminance, _vertex_normals
 
-__all__ = ["normal_cones", "relit_columns", "region_columns", "cull_columns", "slab_half_width"]
+__all__ = ["normal_cones", "neighbour_normals", "relit_columns", "region_columns", "cull_columns", "slab_half_width"]
 
 
 def _tree_nodes(tree, per_vertex: np.ndarray) -> np.ndarray:
@@ -157,8 +160,7 @@ def _lambert_range(axis, half, light: Lighting):
         hi = np.maximum(np.abs(hi_cos), np.abs(lo_cos))
         lo = np.where(straddles, 0.0, np.minimum(np.abs(hi_cos), np.abs(lo_cos)))
         hi_cos, lo_cos, mid = hi, lo, np.abs(mid)
-    shade = lambda c: np.clip(light.ambient + light.diffuse * np.maximum(c, 0.0), 0.0, 1.0)  # noqa: E731
-    return shade(lo_cos), shade(hi_cos), shade(mid)
+    return _shade(lo_cos, light), _shade(hi_cos, light), _shade(mid, light)
 
 
 def _region_range(tree):
@@ -347,7 +349,9 @@ def relit_columns(tree, lighting) -> dict:
     """The luminance columns of ``tree`` as a renderer relighting it with ``lighting`` (an
     :class:`optim.Lighting` or what :meth:`Lighting.coerce` takes) shows them: ``lum`` (proxy),
     ``lum_min``, ``lum_max`` and ``fold_delta`` (N,) float32, relative linear luminance in [0, 1]
-    (leaves: ``fold_delta`` 0). Cached per lighting."""
+    (leaves: ``fold_delta`` 0): the Lambert range over the node's normal cone and its albedo range,
+    widened to the shading change at its neighbours' vertices (:func:`_neighbour_shading`). Cached
+    per lighting (the neighbours' normals once per tree)."""
     light = Lighting.coerce(lighting)
 
     def build():
@@ -356,6 +360,7 @@ def relit_columns(tree, lighting) -> dict:
         a_lo, a_hi, a_mid = _albedo(tree)
         lo, hi, proxy = a_lo * i_lo, a_hi * i_hi, a_mid * i_mid
         delta = np.maximum(hi - proxy, proxy - lo)
+        lo, delta = _neighbour_shading(tree, light, lo, delta)
         delta[np.asarray(tree.child_count) == 0] = 0.0
         f32 = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
         return dict(lum=f32(proxy), lum_min=f32(lo), lum_max=f32(hi), fold_delta=f32(delta))
@@ -446,43 +451,151 @@ def _rim_columns(tree, v, f, fn):
     return mask, rim
 
 
-def _post_fold_masks(tree, v, f):
-    """((N, 6) uint64 normal-cube bits, (N,) float64 smallest cosine to the node's cone axis) of the
-    faces each node's fold leaves behind: every face with a corner among the node's supported
-    vertices and one outside it, with the inside corners at the node's proxy (``tree.position``).
+def _left_faces(tree, v, f):
+    """The faces each node's fold leaves behind, one batch per step: ``(face (K,) int64, corner (K,)
+    int64, node (K,) int64, inside (K, 3) bool, corners (K, 3, 3) float64 with the inside ones at the
+    proxy)``. A face leaves a node when it has a corner among the node's supported vertices and one
+    outside it.
 
     Those nodes are, for each corner, the ones on the path from its leaf up to (not including) the
     first node holding all three corners: each corner walks up one level per step, all corners at
     once, and stops there (O(T x the depth of a face's corners below their common ancestor), not
-    O(T x tree depth))."""
-    N = tree.n_nodes
+    O(T x tree depth)). A node holding two corners of a face is reached by both walks: ``corner`` says
+    which (count each pair once with ``corner == argmax(inside)``)."""
     fd = _depth_first_position(tree)[f]  # (T, 3) depth-first positions of the corners
     leaf_lo, leaf_hi = np.asarray(tree.leaf_lo, np.int64), np.asarray(tree.leaf_hi, np.int64)
     parent = np.asarray(tree.parent, np.int64)
     proxy = np.asarray(tree.position, np.float64)
+    face = np.repeat(np.arange(len(f)), 3)
+    corner = np.tile(np.arange(3), len(f))
+    cur = parent[np.asarray(tree.vertex_node, np.int64)[f.ravel()]]  # a leaf's own fold changes nothing
+    while face.size:
+        keep = cur >= 0
+        face, corner, cur = face[keep], corner[keep], cur[keep]
+        d = fd[face]
+        inside = (d >= leaf_lo[cur, None]) & (d < leaf_hi[cur, None])
+        part = ~inside.all(1)
+        face, corner, cur, inside = face[part], corner[part], cur[part], inside[part]  # holds all three: stop
+        if not face.size:
+            break
+        yield face, corner, cur, inside, np.where(inside[:, :, None], proxy[cur][:, None, :], v[f[face]])
+        cur = parent[cur]
+
+
+def _post_fold_masks(tree, v, f):
+    """((N, 6) uint64 normal-cube bits, (N,) float64 smallest cosine to the node's cone axis) of the
+    faces each node's fold leaves behind (:func:`_left_faces`)."""
+    N = tree.n_nodes
     axis = normal_cones(tree)[0].astype(np.float64)
     out = np.zeros((N, 6), np.uint64)
     cos_min = np.ones(N)
     flat = out.reshape(-1)
-    face = np.repeat(np.arange(len(f)), 3)
-    cur = parent[np.asarray(tree.vertex_node, np.int64)[f.ravel()]]  # a leaf's own fold changes nothing
-    while face.size:
-        keep = cur >= 0
-        face, cur = face[keep], cur[keep]
-        d = fd[face]
-        inside = (d >= leaf_lo[cur, None]) & (d < leaf_hi[cur, None])
-        part = ~inside.all(1)
-        face, cur, inside = face[part], cur[part], inside[part]  # a node holding all three: stop
-        if not face.size:
-            break
-        p = np.where(inside[:, :, None], proxy[cur][:, None, :], v[f[face]])
+    for _, _, cur, _, p in _left_faces(tree, v, f):
         n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         ok = np.einsum("ij,ij->i", n, n) > 0
         cell = normal_cells(n[ok])
         np.bitwise_or.at(flat, cur[ok] * 6 + cell // 64, np.left_shift(np.uint64(1), (cell % 64).astype(np.uint64)))
         np.minimum.at(cos_min, cur[ok], np.einsum("ij,ij->i", _unit(n[ok]), axis[cur[ok]]))
-        cur = parent[cur]
     return out, cos_min
+
+
+def _build_neighbour_normals(tree):
+    v = np.asarray(tree.vertices, np.float64)
+    f = np.asarray(tree.faces, np.int64)
+    V, N = len(v), tree.n_nodes
+    fn = face_normals(v, f)  # |fn| = 2 area: the weights of an area-weighted vertex normal
+    n_old = _vertex_normals(v, f, fn)
+    keys, deltas = [], []
+    for face, corner, cur, inside, p in _left_faces(tree, v, f):
+        once = np.argmax(inside, axis=1) == corner  # each (face, node) from its first inside corner
+        face, cur, inside, p = face[once], cur[once], inside[once], p[once]
+        dn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) - fn[face]
+        for j in range(3):
+            out = ~inside[:, j]
+            keys.append(cur[out] * V + f[face[out], j])
+            deltas.append(dn[out])
+    keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+    deltas = np.concatenate(deltas) if deltas else np.zeros((0, 3))
+    uniq, inv = np.unique(keys, return_inverse=True)
+    change = np.zeros((len(uniq), 3))
+    np.add.at(change, inv.ravel(), deltas)
+    node, u = uniq // max(V, 1), uniq % max(V, 1)
+    start = np.searchsorted(node, np.arange(N + 1))
+    new = n_old[u] + change
+    # all of u's faces collapsed: the sum cancels to rounding (of the sum of its faces' lengths)
+    scale = corner_sum(f, np.linalg.norm(fn, axis=1)[:, None], V)[u, 0]
+    new[np.linalg.norm(new, axis=1) <= 1e-9 * scale] = 0.0
+    return start, u.astype(np.int32), _unit(new).astype(np.float32), _unit(n_old).astype(np.float32)
+
+
+def neighbour_normals(tree):
+    """The vertex normals a fold changes outside the node: ``(start (N + 1,) int64, u (P,) int32, after
+    (P, 3) float32, before (V, 3) float32)``; node ``i``'s neighbours (vertices outside it sharing a
+    face with it) are ``u[start[i]:start[i + 1]]``, with their unit area-weighted normals after the
+    node's fold alone (``after``) and before any fold (``before[u]``). Exact: a neighbour's normal sums
+    its faces' area-weighted normals, and the fold changes only the faces it shares with the node
+    (their inside corners at the proxy; those with two inside corners collapse to zero area).
+    About 6 pairs per input triangle (16 bytes each). Cached."""
+    return tree.derived("relight.neighbour_normals", lambda: _build_neighbour_normals(tree))
+
+
+def _shade(cos, light: Lighting):
+    """Relative Lambert intensity (float64) for cosines ``cos`` to the light (``|n . l|`` already taken
+    for a two-sided light)."""
+    return np.clip(light.ambient + light.diffuse * np.maximum(cos, 0.0), 0.0, 1.0)
+
+
+def _reduce_csr(ufunc, values, start, fill):
+    """``ufunc`` over each run ``values[start[i]:start[i + 1]]`` ((N,) float64, ``fill`` for empty runs)."""
+    out = np.full(len(start) - 1, fill, np.float64)
+    nz = np.diff(start) > 0
+    if nz.any():
+        out[nz] = ufunc.reduceat(values, start[:-1][nz])
+    return out
+
+
+def _neighbour_shading(tree, light: Lighting, lo, delta):
+    """``(lum_min, fold_delta)`` (N,) float64 widened so their Michelson contrast also bounds the
+    shading change of every neighbour's vertex (:func:`neighbour_normals`) under ``light``.
+
+    A neighbour ``u`` with albedo ``a`` shades ``a s(n . l)`` at its vertex, before and after the fold,
+    and the faces around it interpolate that (per pixel, at most that change, above at most the lower
+    of the two values). Its pair ``(lo_u, d_u)`` is covered by the node's ``(lo, delta)`` when
+    ``lo <= lo_u`` and ``delta >= d_u`` (on an affine display the contrast ``d / (2 (b + lo) + d)``,
+    ``b >= 0`` the black level, rises with ``d`` and falls with ``lo``), or when ``lo > lo_u`` and
+    ``delta >= d_u lo / lo_u`` (``d / (b + lo)`` is then at least ``d_u / (b + lo_u)`` for every ``b >= 0``).
+    Per node the cheaper of the two ways (lower ``lo`` to the darkest changing neighbour, or scale the
+    neighbours' changes to ``lo``) is taken, by the contrast at ``b = 0``."""
+    start, u, after, before = neighbour_normals(tree)
+    if not len(u):
+        return lo, delta
+    d = np.asarray(light.direction, np.float64)
+    d = d / np.linalg.norm(d)
+    if tree.colors is None:
+        alb = np.ones(len(u))
+    else:
+        alb = _srgb_luminance(np.asarray(tree.colors))[u].astype(np.float64)
+    side = np.abs if light.two_sided else (lambda x: x)  # noqa: E731
+    i0 = alb * _shade(side(before[u].astype(np.float64) @ d), light)
+    i1 = alb * _shade(side(after.astype(np.float64) @ d), light)
+    du = np.abs(i1 - i0)
+    # below any visible contrast (keeps an ambient-only light exactly as it was); a neighbour whose faces
+    # all collapse is drawn by no face
+    changes = (du > 1e-7) & after.any(1)
+    lo_u = np.where(changes, np.minimum(i0, i1), np.inf)
+    du = np.where(changes, du, 0.0)
+    node_lo = np.repeat(lo, np.diff(start))
+    scaled = np.where(lo_u < node_lo, du * node_lo / np.maximum(lo_u, 1e-12), du)
+    lo_a = np.minimum(lo, _reduce_csr(np.minimum, lo_u, start, np.inf))
+    delta_a = np.maximum(delta, _reduce_csr(np.maximum, du, start, 0.0))
+    delta_b = np.maximum(delta, _reduce_csr(np.maximum, scaled, start, 0.0))
+
+    def mich(lo_, d_):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(d_ > 0, d_ / np.maximum(2 * lo_ + d_, 1e-300), 0.0)
+
+    take_a = mich(lo_a, delta_a) <= mich(lo, delta_b)
+    return np.where(take_a, lo_a, lo), np.where(take_a, delta_a, delta_b)
 
 
 def cull_columns(tree):

@@ -5,7 +5,8 @@ whole normal cone. Relit cells on meshes the tests and the sweep do not use; the
 
     .venv/bin/python reports/accuracy/scripts/relit_deviation.py OUT.jsonl [meshes] [variants, default 0.5,1,2]
 
-Variants: a number s (the ``dev{s}`` tilt) or ``ring`` (``ring_cone.py``: the cone widened to the 2-ring).
+Variants: a number s (the ``dev{s}`` tilt), ``ring`` (``ring_cone.py``: the cone widened to the 2-ring) or
+``cone_only`` (``neighbour_normals.py``: the relit columns before the neighbours' vertex normals were scored).
 """
 import sys
 from pathlib import Path
@@ -16,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import optim  # noqa: E402
 from deviation_contrast import dev_columns  # noqa: E402
+from neighbour_normals import cone_only_columns  # noqa: E402
 from ring_cone import ring_columns  # noqa: E402
 from pooled_priority import HELD_OUT, SIZE, budget_rows, emit, held_out_cells  # noqa: E402
 from optim._relight import light_key  # noqa: E402
@@ -36,10 +38,12 @@ def main():
             trees = {name: {"perceptual": mesh.tree["relit"]}}
             for s in scales:
                 t = optim.build_tree(mesh.v, mesh.f, mesh.c)
-                ring = s == "ring"
-                t._derived[f"relight.columns.{light_key(light)}"] = (ring_columns(t, light) if ring else
-                                                                     dev_columns(t, light, float(s)))
-                trees[name]["ring" if ring else f"dev{float(s):g}"] = t
+                if s in ("ring", "cone_only"):
+                    t._derived[f"relight.columns.{light_key(light)}"] = (ring_columns if s == "ring" else cone_only_columns)(t, light)
+                    trees[name][s] = t
+                else:
+                    t._derived[f"relight.columns.{light_key(light)}"] = dev_columns(t, light, float(s))
+                    trees[name][f"dev{float(s):g}"] = t
         row = dict(mesh=name, gaze=g, budget=None)
         for kn, tr in trees[name].items():
             k = optim.score(tr, view)

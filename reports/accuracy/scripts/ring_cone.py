@@ -51,9 +51,13 @@ def ring_half(tree):
 
 
 def ring_columns(tree, light, tight=False):
+    return cone_columns(tree, light, ring_half_tight(tree) if tight else ring_half(tree))
+
+
+def cone_columns(tree, light, half):
+    """Relit columns from the Lambert range over each node's cone of half-angle ``half`` (N,) alone."""
     base = relit_columns(tree, light)
     axis, _ = normal_cones(tree)
-    half = ring_half_tight(tree) if tight else ring_half(tree)
     i_lo, i_hi, i_mid = _lambert_range(axis, half, light)
     a_lo, a_hi, a_mid = _albedo(tree)
     lo, hi, proxy = a_lo * i_lo, a_hi * i_hi, a_mid * i_mid
