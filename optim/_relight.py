@@ -160,7 +160,7 @@ def _lambert_range(axis, half, light: Lighting):
         hi = np.maximum(np.abs(hi_cos), np.abs(lo_cos))
         lo = np.where(straddles, 0.0, np.minimum(np.abs(hi_cos), np.abs(lo_cos)))
         hi_cos, lo_cos, mid = hi, lo, np.abs(mid)
-    return _shade(lo_cos, light), _shade(hi_cos, light), _shade(mid, light)
+    return light.shade(lo_cos), light.shade(hi_cos), light.shade(mid)
 
 
 def _region_range(tree):
@@ -539,12 +539,6 @@ def neighbour_normals(tree):
     return tree.derived("relight.neighbour_normals", lambda: _build_neighbour_normals(tree))
 
 
-def _shade(cos, light: Lighting):
-    """Relative Lambert intensity (float64) for cosines ``cos`` to the light (``|n . l|`` already taken
-    for a two-sided light)."""
-    return np.clip(light.ambient + light.diffuse * np.maximum(cos, 0.0), 0.0, 1.0)
-
-
 def _reduce_csr(ufunc, values, start, fill):
     """``ufunc`` over each run ``values[start[i]:start[i + 1]]`` ((N,) float64, ``fill`` for empty runs)."""
     out = np.full(len(start) - 1, fill, np.float64)
@@ -569,15 +563,12 @@ def _neighbour_shading(tree, light: Lighting, lo, delta):
     start, u, after, before = neighbour_normals(tree)
     if not len(u):
         return lo, delta
-    d = np.asarray(light.direction, np.float64)
-    d = d / np.linalg.norm(d)
     if tree.colors is None:
         alb = np.ones(len(u))
     else:
         alb = _srgb_luminance(np.asarray(tree.colors))[u].astype(np.float64)
-    side = np.abs if light.two_sided else (lambda x: x)  # noqa: E731
-    i0 = alb * _shade(side(before[u].astype(np.float64) @ d), light)
-    i1 = alb * _shade(side(after.astype(np.float64) @ d), light)
+    i0 = alb * light.intensity(before[u], np.float64)
+    i1 = alb * light.intensity(after, np.float64)
     du = np.abs(i1 - i0)
     # below any visible contrast (keeps an ambient-only light exactly as it was); a neighbour whose faces
     # all collapse is drawn by no face

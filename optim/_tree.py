@@ -103,13 +103,17 @@ class Lighting:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
-    def intensity(self, normals: np.ndarray) -> np.ndarray:
-        """Relative luminance (K,) float32 for unit normals (K, 3)."""
+    def shade(self, cos) -> np.ndarray:
+        """Relative luminance (float64) for cosines ``cos`` of normals to the light (``|n . l|`` already
+        taken for a two-sided light)."""
+        return np.clip(self.ambient + self.diffuse * np.maximum(cos, 0.0), 0.0, 1.0)
+
+    def intensity(self, normals: np.ndarray, dtype=np.float32) -> np.ndarray:
+        """Relative luminance (K,) ``dtype`` (computed in float64) for unit normals (K, 3)."""
         d = np.asarray(self.direction, dtype=np.float64)
         d = d / np.linalg.norm(d)
         ndl = np.asarray(normals, dtype=np.float64) @ d
-        ndl = np.abs(ndl) if self.two_sided else np.maximum(ndl, 0.0)
-        return np.clip(self.ambient + self.diffuse * ndl, 0.0, 1.0).astype(np.float32)
+        return self.shade(np.abs(ndl) if self.two_sided else ndl).astype(dtype)
 
 
 def _srgb_luminance(rgb: np.ndarray) -> np.ndarray:

@@ -346,7 +346,6 @@ def test_post_fold_masks_match_a_per_node_reference():
 def _refold_normals(tree, node):
     """Unit area-weighted vertex normals (V, 3) of the input mesh with ``node`` folded alone (its supported
     vertices at its proxy), by brute force, and the vertices outside it sharing a face with it."""
-
     verts = supported(tree, node)
     v = np.asarray(tree.vertices, np.float64).copy()
     v[verts] = tree.position[node]
@@ -384,13 +383,13 @@ def test_flat_panel_folded_beside_a_ridge_has_relit_contrast():
     light = optim.Lighting(direction=(0.6, 0.0, 1.0), ambient=0.1, diffuse=0.9)
     cols = optim.relit_columns(tree, light)
     _, half = optim.normal_cones(tree)
-    shade = lambda n: np.clip(0.1 + 0.9 * np.maximum(n @ (np.array([0.6, 0, 1]) / np.hypot(0.6, 1)), 0), 0, 1)  # noqa: E731
-    before = optim.neighbour_normals(tree)[3].astype(np.float64)
-    panels = [n for n in np.flatnonzero((tree.child_count > 0) & (half < 1e-4))]
+    before = optim.neighbour_normals(tree)[3]
+    panels = np.flatnonzero((tree.child_count > 0) & (half < 1e-4))
     ridge_side = 0
     for node in panels:
         after, near = _refold_normals(tree, node)
         near = near[after[near].any(1)]  # neighbours left with faces
+        shade = lambda n: light.intensity(n, np.float64)  # noqa: E731
         change = np.abs(shade(after[near]) - shade(before[near])).max() if len(near) else 0.0
         assert cols["fold_delta"][node] >= change - 1e-6
         if change > 0.01:
