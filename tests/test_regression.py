@@ -1,9 +1,10 @@
 """Behaviour pin: keys, cuts, extracted meshes, model outputs and fitted constants on fixed inputs.
 
 The values in ``tests/data/regression.npz`` were computed by :func:`compute` on the main branch before
-the architecture refactor (issue 9) and must not change when code moves: pixel keys, cut masks,
-extracted meshes and triangle counts exactly; perceptual keys and CSF outputs to float32 rounding
-(rtol 1e-5); fitted constants to the solvers' tolerance (rtol 1e-6).
+the architecture refactor (issue 9) and must not change when code moves: cut masks, extracted meshes
+and triangle counts exactly; pixel (size) keys to a few float32 ulps (rtol 1e-6); perceptual keys and
+CSF outputs to float32 rounding (rtol 1e-5); exact-path keys, roots found by a fixed-step safeguarded
+Newton, to rtol 1e-4; fitted constants to the solvers' tolerance (rtol 1e-6).
 
 Regenerate only for an intended change of behaviour, and say so in the commit:
 ``.venv/bin/python -m tests.test_regression --write``.
@@ -30,6 +31,12 @@ DATA = Path(__file__).resolve().parent / "data" / "regression.npz"
 _RTOL_FLOAT = 1e-5
 #: fitted constants (float64 solves stopped at rtol 1e-8 of the step)
 _RTOL_FIT = 1e-6
+#: pixel (size) keys: the projection's float32 rounding differs by up to 2 ulps between XLA:CPU builds
+#: for other CPUs (measured: 242 of 5005 sphere keys, 2.1e-7 at most; compared exactly, this failed CI)
+_RTOL_PIXEL = 1e-6
+#: exact-path keys: roots of a float32 function by safeguarded Newton (pmetric._inverse); a few ulps of
+#: change in the function near a shallow root move the root by up to 1.7e-5 (measured between machines)
+_RTOL_ROOT = 1e-4
 
 
 def _models():
@@ -157,7 +164,11 @@ def current():
 def _tolerance(key: str):
     if key.startswith("fit/"):
         return _RTOL_FIT
-    if key.startswith("csf/") or "/perceptual/" in key or "/exact/" in key or key.endswith("/distance"):
+    if "/exact/" in key:
+        return _RTOL_ROOT
+    if key.endswith("/size"):
+        return _RTOL_PIXEL
+    if key.startswith("csf/") or "/perceptual/" in key or key.endswith("/distance"):
         return _RTOL_FLOAT
     if "/terms/" in key and not key.endswith(("culled", "backfacing", "silhouette")):
         return _RTOL_FLOAT
