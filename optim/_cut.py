@@ -323,14 +323,13 @@ def _extract_parts(tree, unf):
 
 def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
     """Second stage of :func:`extract`: the mesh ``(vertices, faces, colors, keep)`` of
-    :func:`_boundary_corners`'s arrays (the boundary nodes the corners use, named and ordered by their
-    smallest input vertex). ``rep``: :func:`_representatives` of ``bnd`` when already made."""
-    V, nb = tree.n_vertices, bnd.size
+    :func:`_boundary_corners`'s arrays (the boundary nodes, ordered by their name, the smallest input
+    vertex each represents: the used ones, in the same order, are the output vertices). ``rep``:
+    :func:`_representatives` of ``bnd`` when already made."""
+    nb = bnd.size
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
-    ub = np.flatnonzero(used)
-    mv = tree.min_vertex.take(bnd.take(ub))  # a cluster is named by its smallest input vertex
-    srt = ub.take(_order_of_distinct(mv, V))  # used ids by name
+    srt = np.flatnonzero(used)  # used ids, by name
     newidx = np.empty(nb, dtype=np.int32)  # read only at used boundary ids
     newidx[srt] = np.arange(srt.size, dtype=np.int32)
     faces = newidx.take(fb)
@@ -346,14 +345,16 @@ def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
 
 
 def _boundary_corners(tree, unf):
-    """First stage of :func:`extract`: ``(bnd, fb, keep)``, the highest folded nodes ``bnd`` (nb,) in
-    depth-first leaf order, the boundary id of each corner of the kept triangles ``fb`` (T', 3) int32 and
-    those triangles ``keep`` (T',) ascending; None when ``unf`` is not closed under ancestors.
+    """First stage of :func:`extract`: ``(bnd, fb, keep)``, the highest folded nodes ``bnd`` (nb,) ordered
+    by name (the smallest input vertex each represents), the boundary id of each corner of the kept
+    triangles ``fb`` (T', 3) int32 and those triangles ``keep`` (T',) ascending; None when ``unf`` is not
+    closed under ancestors (the boundary nodes' leaf ranges do not tile 0..V-1).
 
     Work proportional to the cut, plus a few O(V) fills: the kept triangles are the subtris of the
     unfolded nodes (contiguous per node); the highest folded nodes (folded, parent unfolded) are the
-    folded children of unfolded nodes, and their depth-first leaf ranges tile 0..V-1, so a forward fill
-    maps every leaf position to its node."""
+    folded children of unfolded nodes. Their depth-first leaf ranges tile 0..V-1, so a running maximum
+    of the range starts maps every leaf position to the start of its range, and that start to its node.
+    Ordering the nodes by name here, not by leaf position, makes the output's vertex order free."""
     V, T = tree.n_vertices, tree.n_triangles
     corner_lp, sub_start, subtris = _extract_index_fast(tree)
     U = np.flatnonzero(unf)
@@ -366,17 +367,24 @@ def _boundary_corners(tree, unf):
         bnd = np.zeros(1, dtype=np.intp)
         keep = np.zeros(0, dtype=np.intp)
     nb = bnd.size
-    # boundary nodes in leaf order (distinct leaf_lo < V: a sort of the few, else one scatter over V)
-    lo = tree.leaf_lo.take(bnd)
-    order = _order_of_distinct(lo, V)
-    bnd = bnd.take(order)
-    lo = lo.take(order)
-    if order.size != nb or int((tree.leaf_hi.take(bnd) - lo).sum()) != V:  # not closed: no tiling of 0..V-1
+    order = _order_of_distinct(tree.min_vertex.take(bnd), V)  # by name
+    if order.size != nb:  # two boundary nodes with one name: nested, not closed
         return None
-    at = np.zeros(V, dtype=np.int32)  # boundary id at every leaf position: +1 where each range starts, summed
-    at[lo[1:]] = 1
-    np.cumsum(at, out=at)
-    fb = at.take(_take_rows(corner_lp, keep))  # (T', 3) boundary ids
+    bnd = bnd.take(order)
+    lo, hi = tree.leaf_lo.take(bnd), tree.leaf_hi.take(bnd)
+    if int((hi - lo).sum()) != V:
+        return None
+    start = np.zeros(V, dtype=np.int32)  # start of the range holding each leaf position
+    start[lo] = lo
+    np.maximum.accumulate(start, out=start)
+    node_at = np.empty(V, dtype=np.int32)  # boundary id at each range start (read only there)
+    ids = np.arange(nb, dtype=np.int32)
+    node_at[lo] = ids
+    # a tiling: distinct starts (no id overwritten), none inside another range (the last leaf of each
+    # range maps back to its own start), lengths summing to V (then the disjoint ranges cover 0..V-1)
+    if not (np.array_equal(node_at.take(lo), ids) and np.array_equal(start.take(hi - 1), lo)):
+        return None
+    fb = node_at.take(start.take(_take_rows(corner_lp, keep)))  # (T', 3) boundary ids
     return bnd, fb, keep
 
 
@@ -405,9 +413,11 @@ def _order_of_distinct(vals: np.ndarray, n: int) -> np.ndarray:
     distinct (repeated values: fewer than k positions, one per value; argsort keeps them all)."""
     if vals.size * 64 < n:
         return np.argsort(vals, kind="stable")
-    slot = np.full(n, -1, dtype=np.intp)
-    slot[vals] = np.arange(vals.size, dtype=np.intp)
-    return slot[slot >= 0]  # shorter than vals when they repeat
+    seen = np.zeros(n, dtype=bool)
+    seen[vals] = True
+    slot = np.empty(n, dtype=np.int32)  # read only where seen
+    slot[vals] = np.arange(vals.size, dtype=np.int32)
+    return slot[seen]  # shorter than vals when they repeat
 
 
 def _take_rows(a: np.ndarray, idx) -> np.ndarray:

@@ -275,3 +275,48 @@ def test_extract_equals_reference_implementation(name, seed):
     bad[tree.internal[-1]] = True  # an unfolded node whose parent is folded
     for a, b in zip(optim.extract(tree, bad), _extract_reference(tree, bad)):
         assert (a is None and b is None) or np.array_equal(a, b)
+    # masks not closed under ancestors: a closed cut with a few nodes flipped either way (nested
+    # boundary nodes whose ranges overlap while their lengths still sum to V must not pass as a tiling)
+    internal = tree.internal
+    for frac in (0.05, 0.3):
+        base = optim.budget_cut(tree, keys, int(frac * tree.n_triangles)).unfolded
+        for _ in range(4):
+            bad = base.copy()
+            flip = rng.choice(internal, size=rng.integers(1, 6), replace=False)
+            bad[flip] = ~bad[flip]
+            for a, b in zip(optim.extract(tree, bad), _extract_reference(tree, bad)):
+                assert (a is None and b is None) or np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if n != "soup-octree"])  # its 40 points: too shallow to nest
+def test_extract_overlap_hidden_by_a_gap_is_not_a_tiling(name):
+    """A mask not closed under ancestors whose boundary ranges overlap by exactly as many leaves as
+    they leave uncovered (their lengths still sum to V, their starts are distinct) is not taken for a
+    tiling: extract gives the reference's arrays (before this check, a silently different mesh)."""
+    from optim._cut import _extract_reference
+
+    tree = TREES[name]
+    rng = np.random.default_rng(5)
+    parent, size = tree.parent, tree.leaf_hi - tree.leaf_lo
+    leaf = tree.child_count == 0
+    bad = None
+    for frac in (0.3, 0.1, 0.5, 0.7):
+        unf = optim.budget_cut(tree, _random_keys(tree, rng, ties=False), int(frac * tree.n_triangles)).unfolded
+        for c in np.flatnonzero(~unf & unf[parent] & ~leaf):  # C folded, internal, its parent unfolded
+            kids = np.arange(tree.child_start[c], tree.child_start[c] + tree.child_count[c])
+            kids = kids[(tree.child_count[kids] > 0) & (tree.leaf_lo[kids] != tree.leaf_lo[c])]
+            if kids.size == 0:  # E: an internal child that does not start C's range
+                continue
+            e = kids[0]
+            outside = (tree.leaf_lo >= tree.leaf_hi[c]) | (tree.leaf_hi <= tree.leaf_lo[c])
+            gaps = np.flatnonzero(leaf & unf[parent] & outside)  # leaves drawn as themselves, outside C
+            if gaps.size >= size[e]:
+                bad = unf.copy()
+                bad[e] = True  # E's folded children lie inside C: an overlap of size[e] leaves
+                bad[gaps[: size[e]]] = True  # as many leaves "unfolded": no boundary node covers them
+                break
+        if bad is not None:
+            break
+    assert bad is not None
+    for a, b in zip(optim.extract(tree, bad), _extract_reference(tree, bad)):
+        assert (a is None and b is None) or np.array_equal(a, b)
