@@ -15,7 +15,7 @@ from .fit import FitResult, expressible_rows, fit_least_squares, fitted_fields
 from ._mesh import MeshReport, ValidatedMesh, load_mesh, save_mesh, validate_mesh
 from ._shapes import bumpy_sphere, bumpy_torus, grid_mesh, icosphere
 from ._normal_cube import normal_cell_directions, normal_cells
-from ._tree import Lighting, VertexTree, load_tree, mesh_hash, vertex_luminance
+from ._tree import Lighting, VertexTree, load_tree, local_origin, mesh_hash, vertex_luminance
 from ._build import build_tree
 from ._meshopt_tree import MeshoptHierarchy, meshopt_parents
 from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut, min_nonempty_budget, repair_monotone,

@@ -31,10 +31,10 @@ import numpy as np
 from pmetric import PlodError
 
 from ._levels import Levels, level_runs
-from ._mesh import validated_mesh_and_normals
+from ._mesh import face_normals, validated_mesh_and_normals
 from ._normal_cube import _unit, normal_cells
 from ._qem import PROXIES
-from ._tree import METHODS, VertexTree, Lighting, _srgb_luminance, _vertex_normals
+from ._tree import METHODS, VertexTree, Lighting, _srgb_luminance, _vertex_normals, local_origin
 
 __all__ = ["build_tree", "BUILD_STAGES"]
 
@@ -168,7 +168,13 @@ def build_tree(vertices, faces, colors=None, method: str = "meshopt", lighting=N
 
     step("validate")
     mesh, fn = validated_mesh_and_normals(vertices, faces, colors, count_nonmanifold=False)
-    v, f, c = mesh.vertices, mesh.faces, mesh.colors
+    v_in, f, c = mesh.vertices, mesh.faces, mesh.colors
+    origin = local_origin(v_in)  # 0 unless the mesh is far from 0 for its size: then all work is relative
+    if origin.any():
+        v = v_in - origin  # exact (see local_origin)
+        fn = face_normals(v, f)  # the face normals of the relative positions, as for a mesh near 0
+    else:
+        v = v_in
     step("cluster")
     vn = _vertex_normals(v, f, fn)
     parent_old, quadrics, survival = _cluster(v, f, fn, method, qem_aggressiveness, qem_diagonal, c)
@@ -177,7 +183,9 @@ def build_tree(vertices, faces, colors=None, method: str = "meshopt", lighting=N
 
         quadrics = vertex_quadrics(v, f, fn)
     tree = _assemble(v, f, c, vn, fn, parent_old, quadrics, light if c is None else None, step, proxy=proxy,
-                     survival=survival, method=method, mesh_report=dataclasses.asdict(mesh.report))
+                     survival=survival, method=method, mesh_report=dataclasses.asdict(mesh.report), origin=origin)
+    if origin.any():
+        tree = dataclasses.replace(tree, vertices=v_in)  # the input's vertices; node arrays stay relative
     step("done")
     return tree
 

@@ -392,6 +392,8 @@ def _representatives(tree, nodes) -> np.ndarray:
     """(k, 3) positions of the nodes a cut draws (input vertices for leaves, proxies otherwise), in the
     input vertices' dtype."""
     verts = _take_rows(tree.position, nodes).astype(tree.vertices.dtype)
+    if tree.origin.any():  # proxies are stored relative to the tree's origin
+        verts += tree.origin
     leaf = np.flatnonzero(tree.child_count.take(nodes) == 0)  # leaves give back the input vertex exactly
     verts[leaf] = tree.vertices.take(tree.min_vertex.take(nodes.take(leaf)), axis=0)
     return verts
@@ -480,7 +482,7 @@ def _reference_parts(tree, unf):
     nodes = node_at.take(fill.take(vdfs.take(out_v)))
     verts = tree.vertices.take(out_v, axis=0)  # right for leaves (a leaf's canonical vertex is its own)
     inner = np.flatnonzero(tree.child_count.take(nodes))
-    verts[inner] = tree.position.take(nodes.take(inner), axis=0)
+    verts[inner] = tree.position.take(nodes.take(inner), axis=0) + tree.origin
     colors = None
     if tree.color is not None:
         colors = tree.colors.take(out_v, axis=0) if tree.colors is not None else tree.color.take(nodes, axis=0)

@@ -461,6 +461,16 @@ class _Cols(NamedTuple):
     fold_delta: jnp.ndarray
 
 
+def _origin(h: PointHierarchy) -> np.ndarray:
+    """(3,) float64: the origin of the float32 columns (:func:`optim._tree.local_origin` of the points:
+    0 unless the cloud lies far from 0 for its size, as georeferenced scans do)."""
+    if "origin" not in h._cache:
+        from ._tree import local_origin
+
+        h._cache["origin"] = local_origin(h.center[h.child_count == 0])
+    return h._cache["origin"]
+
+
 def _columns(h: PointHierarchy, widen: bool):
     """(own-cone columns, silhouette-cone columns): the hierarchy as padded float32 device columns;
     the silhouette cone is ``sil_half`` when ``widen``, else the node's own cone."""
@@ -468,7 +478,8 @@ def _columns(h: PointHierarchy, widen: bool):
         pad = -h.n_nodes % _PAD
         f = lambda a: jnp.asarray(np.concatenate([np.asarray(a, np.float32), np.zeros(pad, np.float32)]))  # noqa: E731
         half = lambda a: np.minimum(a, np.pi / 2)  # noqa: E731  (cone_facing takes half-angles up to 90 deg)
-        cols = _Cols(f(h.center[:, 0]), f(h.center[:, 1]), f(h.center[:, 2]), f(h.radius), f(h.radius),
+        c = np.asarray(h.center, np.float64) - _origin(h)  # float32 relative to the origin (optim.local_origin)
+        cols = _Cols(f(c[:, 0]), f(c[:, 1]), f(c[:, 2]), f(h.radius), f(h.radius),
                      f(h.normal[:, 0]), f(h.normal[:, 1]), f(h.normal[:, 2]), f(np.cos(half(h.cone_half))),
                      f(np.sin(half(h.cone_half))), f(h.lum_min), f(h.lum_max), f(h.fold_delta))
         h._cache["cols"] = (cols, cols._replace(cone_cos=f(np.cos(half(h.sil_half))),
@@ -550,7 +561,8 @@ def point_terms(h: PointHierarchy, view, model=None, *, widen: bool = False) -> 
     if not isinstance(h, PointHierarchy):
         raise PlodError(f"traverse: expected a PointHierarchy (optim._points.build_points), got {type(h).__name__}")
     m = _model(model)
-    vp = view_params(view, (float(np.clip(h.lum_min.min(), 0, 1)), float(np.clip(h.lum_max.max(), 0, 1))))
+    vp = view_params(view, (float(np.clip(h.lum_min.min(), 0, 1)), float(np.clip(h.lum_max.max(), 0, 1))),
+                     _origin(h))
     cols, sil_cols = _columns(h, bool(widen))
     out = _terms_program(cols, sil_cols, vp, m, view.gaze_px is not None)
     n = h.n_nodes

@@ -77,7 +77,7 @@ def light_key(lighting) -> str:
 
 
 def _build_cones(tree):
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     f = np.asarray(tree.faces, np.int64)
     fn = face_normals(v, f)  # |fn| = 2 area
     vn = _vertex_normals(v, f, fn)
@@ -118,7 +118,7 @@ def normal_cones(tree):
 
 def _build_slab(tree):
     axis, _ = normal_cones(tree)
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     proxy = np.asarray(tree.position, np.float64)
     ax = axis.astype(np.float64)
     lo, hi = np.asarray(tree.leaf_lo, np.int64), np.asarray(tree.leaf_hi, np.int64)
@@ -198,7 +198,7 @@ def _face_luminance_slope(tree):
     is ``sum_k w_k lin(c_k)`` (Rec. 709 weights ``w``, ``lin`` the sRGB EOTF, convex and increasing), so
     it changes by at most ``sum_k w_k lin'(max_k) |grad c_k|`` per unit length (``max_k`` the face's
     largest value of channel k). Without colours: the gradient of the pre-lit vertex intensities."""
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     f = np.asarray(tree.faces, np.int64)
     if tree.colors is None:
         lum_v = np.asarray(tree.lum, np.float64)[np.asarray(tree.vertex_node, np.int64)]
@@ -224,7 +224,7 @@ def _affine_bound(tree):
     evenly graded region folded to its mean colour near its centroid scores about 0 (the tree's
     ``fold_delta`` scores its whole grade). Without colours the per-vertex pre-lit intensities are
     the one channel."""
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     f = np.asarray(tree.faces, np.int64)
     N = tree.n_nodes
     internal = np.asarray(tree.child_count) > 0
@@ -369,7 +369,7 @@ def relit_columns(tree, lighting) -> dict:
 
 
 def _build_cull(tree):
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     f = np.asarray(tree.faces, np.int64)
     V = len(v)
     fn = face_normals(v, f)
@@ -500,7 +500,7 @@ def _post_fold_masks(tree, v, f):
 
 
 def _build_neighbour_normals(tree):
-    v = np.asarray(tree.vertices, np.float64)
+    v = np.asarray(tree.local_vertices, np.float64)
     f = np.asarray(tree.faces, np.int64)
     V, N = len(v), tree.n_nodes
     fn = face_normals(v, f)  # |fn| = 2 area: the weights of an area-weighted vertex normal

@@ -59,9 +59,10 @@ class ViewParams(NamedTuple):
     prev_focal: jax.Array
 
 
-def view_params(view, scene_lum) -> ViewParams:
+def view_params(view, scene_lum, origin=None) -> ViewParams:
     """The per-view scalars of ``view`` (an :class:`optim.View`) as device arrays; ``scene_lum`` the
-    darkest and brightest relative luminance of the model."""
+    darkest and brightest relative luminance of the model; ``origin`` (3,) the origin of the node
+    coordinates (``tree.origin``; None: 0): the eyes are made relative to it in float64."""
     from ._view import View
 
     if not isinstance(view, View):
@@ -80,11 +81,12 @@ def view_params(view, scene_lum) -> ViewParams:
     lo = min(scene_lum[0], view.background)
     hi = max(scene_lum[1], view.background)
     f = np.float32
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
     rot = view.rotation
     host = ViewParams(
-        eye=np.asarray(view.eye, f), rot=np.asarray(rot, f), scal=np.asarray(scal, f),
+        eye=np.asarray(np.asarray(view.eye, np.float64) - o, f), rot=np.asarray(rot, f), scal=np.asarray(scal, f),
         gaze=np.asarray(gaze, f), lum=np.asarray([black, peak - black, lo, hi], f),
-        prev_eye=np.asarray((prev or view).eye, f), prev_rot=np.asarray(rot if prev is None else prev.rotation, f),
+        prev_eye=np.asarray(np.asarray((prev or view).eye, np.float64) - o, f), prev_rot=np.asarray(rot if prev is None else prev.rotation, f),
         prev_focal=np.asarray((prev or view).focal_px, f),
     )
     return ViewParams(*jax.device_put(tuple(host)))  # one transfer (a jnp.asarray each costs ~0.2 ms)

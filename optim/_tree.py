@@ -2,7 +2,8 @@
 (:meth:`VertexTree.save`, :func:`load_tree`), its build identity (:func:`mesh_hash`) and the pre-lighting
 of uncoloured meshes (:class:`Lighting`). The builder is :func:`optim._build.build_tree`.
 
-Units: positions, ``center``, ``radius``, ``geom_error`` in object units; ``lum*`` and
+Units: positions, ``center``, ``radius``, ``geom_error`` in object units (``position`` and ``center``
+float32, relative to the tree's ``origin``: see :func:`local_origin`); ``lum*`` and
 ``fold_delta`` are relative linear luminance in [0, 1] ([LHNW00]: "intensity ... luminance output by a
 standard computer monitor, normalized to the range [0, 1]").
 """
@@ -28,11 +29,13 @@ __all__ = [
     "Lighting",
     "VertexTree",
     "load_tree",
+    "local_origin",
     "mesh_hash",
     "vertex_luminance",
 ]
 
-TREE_FORMAT = "plod-vertex-tree-1"
+TREE_FORMAT = "plod-vertex-tree-2"  # 2: the origin (trees of format 1 read with origin 0)
+_READ_FORMATS = ("plod-vertex-tree-1", TREE_FORMAT)
 METHODS = ("qem", "octree", "meshopt")
 
 # ----------------------------------------------------------------------------------------------
@@ -155,6 +158,28 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def local_origin(vertices) -> np.ndarray:
+    """(3,) float64: the origin of a tree's float32 node coordinates for ``vertices`` (V, 3).
+
+    Per axis 0, unless the bounding box's centre lies more than 4 diagonals from 0 on that axis: then
+    the centre rounded to a multiple of ``q``, the power of two at or above the diagonal. The float32
+    positions then carry the mesh's own size, not its distance from 0 (a mesh 1e7 units away with a
+    diagonal of 1 kept about 1 unit of precision, and its keys and cuts were silently wrong). Such an
+    origin is within ``q / 2`` of the centre and at least 3 diagonals from 0, so every coordinate lies
+    within a factor of 2 of it and ``vertices - origin`` is exact (Sterbenz), as is adding it back.
+    Meshes near 0 keep origin 0 and the same tree as without this."""
+    v = np.asarray(vertices, np.float64)
+    if v.size == 0:
+        return np.zeros(3)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    centre = 0.5 * lo + 0.5 * hi
+    if diag <= 0 or not np.any(np.abs(centre) > 4 * diag):
+        return np.zeros(3)
+    q = 2.0 ** np.ceil(np.log2(diag))
+    return np.where(np.abs(centre) > 4 * diag, np.round(centre / q) * q, 0.0)
+
+
 _ARRAYS = (
     "vertices", "faces", "colors", "parent", "child_start", "child_count", "depth", "vertex_node",
     "position", "color", "center", "radius", "lum", "lum_min", "lum_max", "fold_delta", "geom_error",
@@ -172,6 +197,9 @@ class VertexTree:
     the range of depth-first leaf positions a node supports; ``leaf_vertex`` (V,) int32, the input
     vertex at each depth-first leaf position; ``min_vertex`` (N,) int32, the smallest input vertex
     index a node supports. ``method``, ``lighting`` and ``mesh_report`` describe how it was built.
+    ``origin`` (3,) float64: the float32 node arrays ``position`` and ``center`` are relative to it
+    (:func:`local_origin`; 0 unless the mesh lies far from the coordinate origin for its size);
+    ``vertices`` are the input's, unchanged, and :attr:`local_vertices` the same relative to ``origin``.
 
     Immutable: attributes cannot be set, and the arrays are read-only views (``flags.writeable`` is
     False; the builder's arrays are never written again). Data derived from the tree (the scoring
@@ -208,6 +236,7 @@ class VertexTree:
     method: str = "octree"
     lighting: Lighting | None = None
     mesh_report: dict = dataclasses.field(default_factory=dict)
+    origin: np.ndarray | None = None
     _derived: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -217,6 +246,10 @@ class VertexTree:
                 a = np.asarray(a).view()
                 a.flags.writeable = False
                 object.__setattr__(self, k, a)
+        o = np.zeros(3) if self.origin is None else np.array(self.origin, dtype=np.float64)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise PlodError(f"tree: origin must be 3 finite numbers, got {self.origin!r}")
+        object.__setattr__(self, "origin", _readonly(o))
 
     def derived(self, name: str, build: Callable[[], object]):
         """The derived value ``name`` of this tree: ``build()`` on the first call, the same object on
@@ -227,6 +260,14 @@ class VertexTree:
         except KeyError:
             value = cache[name] = build()
             return value
+
+    @property
+    def local_vertices(self) -> np.ndarray:
+        """(V, 3) the input vertices relative to :attr:`origin` (the frame of ``position`` and ``center``;
+        exact: :func:`local_origin` makes the subtraction exact); ``vertices`` itself when the origin is 0."""
+        if not self.origin.any():
+            return self.vertices
+        return self.derived("local_vertices", lambda: _readonly(np.asarray(self.vertices, np.float64) - self.origin))
 
     # sizes ---------------------------------------------------------------------------------
     @property
@@ -275,6 +316,7 @@ class VertexTree:
             "method": self.method,
             "lighting": None if self.lighting is None else self.lighting.to_dict(),
             "mesh_report": self.mesh_report,
+            "origin": [float(x) for x in self.origin],  # repr of a float64 reads back exactly
         }
         arrays = {k: getattr(self, k) for k in _ARRAYS if getattr(self, k) is not None}
         with atomic_path(path, protect=tuple(protect)) as tmp:
@@ -314,7 +356,7 @@ def load_tree(path: str | os.PathLike) -> VertexTree:
         meta = json.loads(str(data.pop("__meta__")))
     except KeyError:
         raise PlodError(f"{str(p)!r} is not a plod vertex tree (no metadata)") from None
-    if meta.get("format") != TREE_FORMAT:
+    if meta.get("format") not in _READ_FORMATS:
         raise PlodError(f"{str(p)!r}: unsupported tree format {meta.get('format')!r} (want {TREE_FORMAT!r})")
     missing = [k for k in _ARRAYS if k not in data and k not in ("colors", "color")]
     if missing:
@@ -331,7 +373,7 @@ def load_tree(path: str | os.PathLike) -> VertexTree:
     light = meta.get("lighting")
     return VertexTree(**kw, method=meta.get("method", "octree"),
                       lighting=None if light is None else Lighting(**light),
-                      mesh_report=meta.get("mesh_report", {}))
+                      mesh_report=meta.get("mesh_report", {}), origin=meta.get("origin"))
 
 
 def mesh_hash(vertices, faces, colors=None, method: str = "qem", lighting=None) -> str:
