@@ -523,7 +523,9 @@ def _host_gathers() -> bool:
     XLA:CPU's scalar gather loops lose to numpy. Measured with ``reports/scripts/ab_score_gathers.py``
     (1M-triangle torus, static views, same keys either way): numpy gathers 0.86x the XLA programs' time on
     2 cores; XLA 1.36x / 1.69x / 1.81x faster on 4 / 8 / 16 cores of a 16-core machine and 2.88x on its
-    H200 GPU (reports/bench_optim_device.md)."""
+    H200 GPU (reports/bench_optim_device.md). The 2-core choice depends on the machine: on the 2-core
+    AVX-512 machine of 2026-12-05 numpy gathers took 1.12x (torus) and 1.07x (sphere) the XLA programs'
+    time for static views, and for moving views (the motion table, tried and not kept) 1.03x / 0.95x."""
     return jax.default_backend() == "cpu" and _usable_cores() <= HOST_GATHER_MAX_CORES
 
 
