@@ -411,7 +411,7 @@ def _ascending(idx: np.ndarray, n: int) -> np.ndarray:
 
 
 def _order_of_distinct(vals: np.ndarray, n: int) -> np.ndarray:
-    """(k,) intp: the permutation sorting the integers ``vals`` (k,) in [0, n) ascending, when they are
+    """(k,) intp or int32: the permutation sorting the integers ``vals`` (k,) in [0, n) ascending, when they are
     distinct (repeated values: fewer than k positions, one per value; argsort keeps them all)."""
     if vals.size * 64 < n:
         return np.argsort(vals, kind="stable")

@@ -174,10 +174,11 @@ def local_origin(vertices) -> np.ndarray:
     lo, hi = v.min(axis=0), v.max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
     centre = 0.5 * lo + 0.5 * hi
-    if diag <= 0 or not np.any(np.abs(centre) > 4 * diag):
+    far = np.abs(centre) > 4 * diag
+    if diag <= 0 or not far.any():
         return np.zeros(3)
     q = 2.0 ** np.ceil(np.log2(diag))
-    return np.where(np.abs(centre) > 4 * diag, np.round(centre / q) * q, 0.0)
+    return np.where(far, np.round(centre / q) * q, 0.0)
 
 
 _ARRAYS = (

@@ -347,7 +347,7 @@ def _refold_normals(tree, node):
     """Unit area-weighted vertex normals (V, 3) of the input mesh with ``node`` folded alone (its supported
     vertices at its proxy), by brute force, and the vertices outside it sharing a face with it."""
     verts = supported(tree, node)
-    v = np.asarray(tree.vertices, np.float64).copy()
+    v = np.asarray(tree.local_vertices, np.float64).copy()  # the frame of tree.position
     v[verts] = tree.position[node]
     inside = np.zeros(tree.n_vertices, bool)
     inside[verts] = True
@@ -389,8 +389,8 @@ def test_flat_panel_folded_beside_a_ridge_has_relit_contrast():
     for node in panels:
         after, near = _refold_normals(tree, node)
         near = near[after[near].any(1)]  # neighbours left with faces
-        shade = lambda n: light.intensity(n, np.float64)  # noqa: E731
-        change = np.abs(shade(after[near]) - shade(before[near])).max() if len(near) else 0.0
+        change = (np.abs(light.intensity(after[near], np.float64) - light.intensity(before[near], np.float64)).max()
+                  if len(near) else 0.0)
         assert cols["fold_delta"][node] >= change - 1e-6
         if change > 0.01:
             ridge_side += 1
