@@ -181,6 +181,19 @@ def local_origin(vertices) -> np.ndarray:
     return np.where(far, np.round(centre / q) * q, 0.0)
 
 
+def _origin_array(origin, who: str) -> np.ndarray:
+    """``origin`` (None: 0) as a (3,) float64 array; PlodError naming ``who`` unless 3 finite numbers."""
+    if origin is None:
+        return np.zeros(3)
+    try:
+        o = np.array(origin, dtype=np.float64)
+    except (TypeError, ValueError):
+        o = None
+    if o is None or o.shape != (3,) or not np.all(np.isfinite(o)):
+        raise PlodError(f"{who}: origin must be 3 finite numbers, got {origin!r}")
+    return o
+
+
 _ARRAYS = (
     "vertices", "faces", "colors", "parent", "child_start", "child_count", "depth", "vertex_node",
     "position", "color", "center", "radius", "lum", "lum_min", "lum_max", "fold_delta", "geom_error",
@@ -247,10 +260,7 @@ class VertexTree:
                 a = np.asarray(a).view()
                 a.flags.writeable = False
                 object.__setattr__(self, k, a)
-        o = np.zeros(3) if self.origin is None else np.array(self.origin, dtype=np.float64)
-        if o.shape != (3,) or not np.all(np.isfinite(o)):
-            raise PlodError(f"tree: origin must be 3 finite numbers, got {self.origin!r}")
-        object.__setattr__(self, "origin", _readonly(o))
+        object.__setattr__(self, "origin", _readonly(_origin_array(self.origin, "tree")))
 
     def derived(self, name: str, build: Callable[[], object]):
         """The derived value ``name`` of this tree: ``build()`` on the first call, the same object on
@@ -374,7 +384,8 @@ def load_tree(path: str | os.PathLike) -> VertexTree:
     light = meta.get("lighting")
     return VertexTree(**kw, method=meta.get("method", "octree"),
                       lighting=None if light is None else Lighting(**light),
-                      mesh_report=meta.get("mesh_report", {}), origin=meta.get("origin"))
+                      mesh_report=meta.get("mesh_report", {}),
+                      origin=_origin_array(meta.get("origin"), f"{str(p)!r}: tree file (corrupt?)"))
 
 
 def mesh_hash(vertices, faces, colors=None, method: str = "qem", lighting=None) -> str:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import optim
+from pmetric import PlodError
 
 #: powers of two scale float coordinates exactly: the trees must be identical
 EXACT = (2.0 ** -20, 2.0 ** -10, 1.0, 2.0 ** 10, 2.0 ** 20)
@@ -100,6 +101,12 @@ def test_origin_survives_save_and_load_and_old_files_read_with_origin_0(mesh, tm
     old = optim.load_tree(tmp_path / "old.npz")
     assert not old.origin.any()
     np.testing.assert_array_equal(old.position, near.position)
+    meta["format"] = "plod-vertex-tree-2"
+    for bad in ([1.0, 2.0], ["a", 0.0, 0.0], [float("nan"), 0.0, 0.0], "far"):  # a damaged origin: one line
+        meta["origin"] = bad
+        np.savez(tmp_path / "bad.npz", __meta__=np.array(json.dumps(meta)), **arrays)
+        with pytest.raises(PlodError, match=r"bad\.npz': tree file \(corrupt\?\): origin must be 3 finite numbers"):
+            optim.load_tree(tmp_path / "bad.npz")
 
 
 @pytest.mark.parametrize("off", [(1000.0, -500.0, 250.0), (1e7, -5e6, 2.5e6), (-3e9, 0.0, 0.0)])
