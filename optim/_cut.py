@@ -26,6 +26,7 @@ import numpy as np
 from pmetric import PlodError
 
 from ._levels import expand_ranges
+from ._parallel import beside
 
 __all__ = ["Cut", "budget_cut", "budget_cut_heap", "min_nonempty_budget", "threshold_cut", "imperceptible_cut",
            "repair_monotone", "extract"]
@@ -307,6 +308,10 @@ def extract(tree, cut):
 
     Returns:
         ``(vertices (V', 3) float64, faces (T', 3) int32, colors (V', 3) float32 or None)``.
+
+    Where the process may use two or more cores, independent parts (the kept triangles and the boundary;
+    half of the corners; the vertex positions and the faces) run at once on a side thread
+    (:mod:`optim._parallel`), with the same result.
     """
     return _extract_parts(tree, _unfolded_mask(tree, cut))[:3]
 
@@ -330,18 +335,27 @@ def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
     srt = np.flatnonzero(used)  # used ids, by name
+    nodes = bnd.take(srt)
+    drawn = beside(_drawn_vertices, tree, nodes, None if rep is None else _take_rows(rep, srt))  # side thread
     newidx = np.empty(nb, dtype=np.int32)  # read only at used boundary ids
     newidx[srt] = np.arange(srt.size, dtype=np.int32)
     faces = newidx.take(fb)
-    nodes = bnd.take(srt)
-    verts = _representatives(tree, nodes) if rep is None else _take_rows(rep, srt)
+    verts, colors = drawn.result()
+    return verts, faces, colors, keep
+
+
+def _drawn_vertices(tree, nodes, verts=None):
+    """Positions (:func:`_representatives`, unless given as ``verts``) and colours (or None) of the nodes
+    a cut draws; leaves keep the input vertex and colour exactly."""
+    if verts is None:
+        verts = _representatives(tree, nodes)
     colors = None
     if tree.color is not None:
         colors = tree.color.take(nodes, axis=0)
         if tree.colors is not None:
             leaf = np.flatnonzero(tree.child_count.take(nodes) == 0)  # leaves keep the input colour exactly
             colors[leaf] = tree.colors.take(tree.min_vertex.take(nodes.take(leaf)), axis=0)
-    return verts, faces, colors, keep
+    return verts, colors
 
 
 def _boundary_corners(tree, unf):
@@ -355,17 +369,35 @@ def _boundary_corners(tree, unf):
     folded children of unfolded nodes. Their depth-first leaf ranges tile 0..V-1, so a running maximum
     of the range starts maps every leaf position to the start of its range, and that start to its node.
     Ordering the nodes by name here, not by leaf position, makes the output's vertex order free."""
-    V, T = tree.n_vertices, tree.n_triangles
     corner_lp, sub_start, subtris = _extract_index_fast(tree)
     U = np.flatnonzero(unf)
+    # the kept triangles on the side thread (optim._parallel), the boundary on this one
+    kept = beside(_kept_triangles, U, sub_start, subtris, tree.num_subtris, tree.n_triangles)
+    tiling = _boundary_tiling(tree, unf, U)
+    keep = kept.result()
+    if tiling is None:
+        return None
+    bnd, start, node_at = tiling
+    return bnd, _corner_ids(corner_lp, keep, start, node_at), keep
+
+
+def _kept_triangles(U, sub_start, subtris, num_subtris, T) -> np.ndarray:
+    """The triangles (ascending intp) whose owner is one of the unfolded nodes ``U``: their subtris."""
+    if not U.size:
+        return np.zeros(0, dtype=np.intp)
+    return _ascending(subtris.take(expand_ranges(sub_start.take(U), num_subtris.take(U))), T)
+
+
+def _boundary_tiling(tree, unf, U):
+    """The boundary nodes of :func:`_boundary_corners` ordered by name, with the (V,) int32 maps of a
+    leaf position to the start of the range holding it (``start``) and of a range start to its boundary
+    id (``node_at``, read only at starts); None when their ranges do not tile 0..V-1."""
+    V = tree.n_vertices
     if U.size:
         bnd = expand_ranges(tree.child_start.take(U), tree.child_count.take(U))
         bnd = bnd[~unf.take(bnd)]
-        keep = subtris.take(expand_ranges(sub_start.take(U), tree.num_subtris.take(U)))
-        keep = _ascending(keep, T)
     else:
         bnd = np.zeros(1, dtype=np.intp)
-        keep = np.zeros(0, dtype=np.intp)
     nb = bnd.size
     order = _order_of_distinct(tree.min_vertex.take(bnd), V)  # by name
     if order.size != nb:  # two boundary nodes with one name: nested, not closed
@@ -384,8 +416,22 @@ def _boundary_corners(tree, unf):
     # range maps back to its own start), lengths summing to V (then the disjoint ranges cover 0..V-1)
     if not (np.array_equal(node_at.take(lo), ids) and np.array_equal(start.take(hi - 1), lo)):
         return None
-    fb = node_at.take(start.take(_take_rows(corner_lp, keep)))  # (T', 3) boundary ids
-    return bnd, fb, keep
+    return bnd, start, node_at
+
+
+def _corner_ids(corner_lp, keep, start, node_at) -> np.ndarray:
+    """(T', 3) int32 boundary id of each corner of the kept triangles; the first half of the rows on the
+    side thread (optim._parallel)."""
+    fb = np.empty((keep.size, 3), dtype=np.int32)
+
+    def rows(a, b):
+        np.take(node_at, start.take(_take_rows(corner_lp, keep[a:b])), out=fb[a:b])
+
+    h = keep.size // 2
+    first = beside(rows, 0, h)
+    rows(h, keep.size)
+    first.result()
+    return fb
 
 
 def _representatives(tree, nodes) -> np.ndarray:

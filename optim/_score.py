@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -52,6 +51,7 @@ from pmetric._numerics import div_or_zero
 
 from ._context import scoring_context
 from ._normal_cube import table_device
+from ._parallel import usable_cores as _usable_cores
 from ._terms import (band_width, contrast_pair, classify, extent, eccentricity, facing_flags, facing_host,
                      facing_rows, frustum_culled, cone_facing, terms, terms_jit, view_params, Terms, _geometry)
 
@@ -507,14 +507,6 @@ def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
 
 #: fewer usable cores than this: table mode gathers in numpy on the CPU backend (:func:`_host_gathers`)
 HOST_GATHER_MAX_CORES = 3
-
-
-def _usable_cores() -> int:
-    """The cores this process may run on (its affinity mask, where the platform has one)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def _host_gathers() -> bool:

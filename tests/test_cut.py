@@ -259,11 +259,15 @@ def test_extract_orderings_equal_sorting(k):
 
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_extract_equals_reference_implementation(name, seed):
+@pytest.mark.parametrize("cores", [1, 2])
+def test_extract_equals_reference_implementation(name, seed, cores, monkeypatch):
     """The cut-proportional extract returns the identical arrays (values and dtypes) as the O(N + V + T)
-    reference, for budget cuts of many sizes; a cut not closed under ancestors falls back to it."""
+    reference, for budget cuts of many sizes; a cut not closed under ancestors falls back to it. With one
+    usable core extract runs in the caller's thread, with two its halves overlap on a side thread."""
+    import optim._parallel
     from optim._cut import _extract_reference
 
+    monkeypatch.setattr(optim._parallel, "usable_cores", lambda: cores)
     tree = TREES[name]
     rng = np.random.default_rng(seed)
     keys = _random_keys(tree, rng, ties=bool(seed % 2))
