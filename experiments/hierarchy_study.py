@@ -145,7 +145,7 @@ def quadric_keys(tree):
     import optim
     from optim._qem import quadric_error, vertex_quadrics
 
-    V = np.asarray(tree.vertices, float)
+    V = np.asarray(tree.local_vertices, float)  # the frame of tree.position (relative to tree.origin)
     F = np.asarray(tree.faces)
     q = vertex_quadrics(V, F)
     qn = np.zeros((tree.n_nodes, 10))

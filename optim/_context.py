@@ -208,16 +208,17 @@ def _scene_lum(lum_min, lum_max) -> tuple:
     return (float(np.clip(np.min(lum_min), 0, 1)), float(np.clip(np.max(lum_max), 0, 1)))
 
 
-def _build(tree) -> ScoringContext:
+def _build(tree, relit: bool = False) -> ScoringContext:
     """The context of ``tree``; for an :class:`optim.VertexTree` its geometry only (luminance columns 0:
-    :func:`_with_columns` puts in those of the lighting)."""
+    :func:`_with_columns` puts in those of the lighting). ``relit``: a relit view asked for it (the
+    neighbours' normals are then made in the cull columns' walk)."""
     n = _check_tree(tree)
     node, levels = _internal_levels(tree, n)
     center = np.asarray(tree.center, np.float32)[node]
     if isinstance(tree, VertexTree):  # what a fold can touch (culled folds are not free)
         from ._relight import cull_columns, normal_cones, slab_half_width
 
-        mask, cull_radius, half = cull_columns(tree)
+        mask, cull_radius, half = cull_columns(tree, neighbours=relit)
         axis = normal_cones(tree)[0]
         slab = slab_half_width(tree)
         lum = dict.fromkeys(("lum_min", "lum_max", "fold_delta"), np.zeros(n, np.float32))
@@ -265,7 +266,7 @@ def scoring_context(tree, lighting=None) -> ScoringContext:
         return _build(tree)
     from ._relight import light_key, region_columns, relit_columns
 
-    base = tree.derived("scoring_context.geometry", lambda: _build(tree))  # shared by every lighting
+    base = tree.derived("scoring_context.geometry", lambda: _build(tree, lighting is not None))  # every lighting's
     if lighting is None:  # what the triangles a fold changes show (their corners' colours)
         return tree.derived("scoring_context", lambda: _with_columns(base, region_columns(tree)))
     return tree.derived(f"scoring_context.relit.{light_key(lighting)}",

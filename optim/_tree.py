@@ -272,6 +272,11 @@ class VertexTree:
             value = cache[name] = build()
             return value
 
+    def has_derived(self, name: str) -> bool:
+        """Whether :meth:`derived` already holds ``name`` (a builder that makes two values in one pass
+        can then skip a value already made)."""
+        return name in self._derived
+
     @property
     def local_vertices(self) -> np.ndarray:
         """(V, 3) the input vertices relative to :attr:`origin` (the frame of ``position`` and ``center``;

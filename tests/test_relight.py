@@ -398,3 +398,27 @@ def test_flat_panel_folded_beside_a_ridge_has_relit_contrast():
         else:
             assert cols["fold_delta"][node] < 1e-5
     assert ridge_side >= 1 and ridge_side < len(panels)
+
+
+def test_cull_columns_and_neighbour_normals_from_one_walk_equal_their_own_builds():
+    """A relit view's first score makes the cull columns and the neighbours' normals in one walk over the
+    faces the folds leave; both are identical to the arrays each build makes alone, and a tree whose
+    neighbours' normals were made first keeps them (one walk each, as before)."""
+    from optim._relight import _build_cull, _build_neighbour_normals
+
+    v, f = optim.bumpy_sphere(2, seed=7, amplitude=0.2)
+    fresh = optim.build_tree(v, f)
+    cols, nn = optim.cull_columns(fresh, neighbours=True), optim.neighbour_normals(fresh)
+    assert fresh.has_derived("relight.cull_columns") and fresh.has_derived("relight.neighbour_normals")
+    alone_cols, none = _build_cull(optim.build_tree(v, f))
+    alone_nn = _build_neighbour_normals(optim.build_tree(v, f))
+    assert none is None
+    for a, b in zip((*cols, *nn), (*alone_cols, *alone_nn)):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    first = optim.build_tree(v, f)
+    nn_first = optim.neighbour_normals(first)
+    assert optim.neighbour_normals(first) is nn_first
+    optim.score(first, optim.View.framing(v, lighting=optim.Lighting()))  # its context: cull columns alone
+    assert optim.neighbour_normals(first) is nn_first
+    for a, b in zip(optim.cull_columns(first), alone_cols):
+        assert np.array_equal(a, b)
