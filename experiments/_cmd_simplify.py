@@ -1,7 +1,8 @@
 """``plod simplify``: simplify one mesh for one view, to a triangle budget or imperceptibly.
 
 Stages: read the mesh (PLY, OBJ, OFF, GLB ... through trimesh) -> vertex tree (built once and cached
-by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``; an empty ``PLOD_CACHE``: no cache) -> view
+by mesh hash under ``$PLOD_CACHE`` or ``~/.cache/plod``, with its first view's per-tree work beside it
+(``optim.save_context``); an empty ``PLOD_CACHE``: no cache) -> view
 (default: the object subtends about 30 deg of a 46 deg screen, the study of [LH01 §6.2]) -> per-node
 keys (``optim.score``) -> cut (``optim.budget_cut`` or ``optim.imperceptible_cut``; with
 ``--cull-back-faces`` ``optim.visible_budget_cut``) -> ``optim.extract`` (and ``optim.drop_back_faces``)
@@ -195,13 +196,22 @@ def _cache_entry(root: Path, key: str) -> tuple[Path, int] | None:
     return None
 
 
+def context_path(entry: Path) -> Path:
+    """The file beside a cached tree ``KEY[.sK].npz`` that keeps its first view's per-tree work
+    (``optim.save_context``): ``ctx-KEY[.sK].npz``."""
+    return entry.with_name("ctx-" + entry.name)
+
+
 def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: bool = False):
-    """(tree, "hit" | "miss" | "off", load seconds, k): the vertex tree of a mesh file, built on the
-    mesh scaled by ``2**k`` (:func:`unit_exponent`; 0 for every mesh of ordinary size).
+    """(tree, "hit" | "miss" | "off", load seconds, k, context file or None): the vertex tree of a mesh
+    file, built on the mesh scaled by ``2**k`` (:func:`unit_exponent`; 0 for every mesh of ordinary size).
 
     The cache is keyed by the file's bytes (plus method and tree format), so a hit skips parsing the
     mesh as well as building the tree; the tree holds the validated mesh (``tree.vertices``,
-    ``tree.faces``, ``tree.colors``, scaled by ``2**k``), which is all the later stages need.
+    ``tree.faces``, ``tree.colors``, scaled by ``2**k``), which is all the later stages need. On a hit
+    the per-tree work of an earlier run's first view is put back too when its file is valid
+    (``optim.load_context``: same code, numpy and tree); the caller saves it after its first view
+    (:func:`save_context_quietly`) to the returned path.
     """
     import optim
 
@@ -215,9 +225,13 @@ def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: 
         found = _cache_entry(root, key)
         if found is not None:
             try:
-                return optim.load_tree(found[0]), "hit", 0.0, found[1]
+                tree = optim.load_tree(found[0])
             except (ValueError, OSError, KeyError):
-                pass  # unreadable or stale cache entry: rebuild and overwrite it
+                tree = None  # unreadable or stale cache entry: rebuild and overwrite it
+            if tree is not None:
+                ctx = context_path(found[0])
+                optim.load_context(tree, ctx)
+                return tree, "hit", 0.0, found[1], ctx
     t0 = time.perf_counter()
     vertices, faces, colors = optim.load_mesh(path)
     k = unit_exponent(vertices)
@@ -231,13 +245,27 @@ def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: 
 
     tree = call_with_progress(optim.build_tree, vertices, faces, colors, method=method, progress=progress)
     if root is None:
-        return tree, "off", load_s, k
+        return tree, "off", load_s, k, None
     entry = root / (f"{key}.npz" if k == 0 else f"{key}.s{k}.npz")
     try:
         tree.save(entry)
     except OSError:
         pass  # a read-only cache never stops the command
-    return tree, "miss", load_s, k
+    return tree, "miss", load_s, k, context_path(entry)
+
+
+def save_context_quietly(tree, ctx: Path | None) -> str:
+    """Keep the first view's per-tree work beside the cached tree (``optim.save_context``, replacing a
+    file that did not hold all of it or was made by other code): "saved", or "off" (no cache, a
+    read-only one, or nothing to keep)."""
+    import optim
+
+    if ctx is None:
+        return "off"
+    try:
+        return "saved" if optim.save_context(tree, ctx) else "off"
+    except OSError:
+        return "off"  # a read-only cache never stops the command
 
 
 def build_view(vertices, args, unit_exp: int = 0):
@@ -350,15 +378,18 @@ def simplify(args) -> dict:
     margin = _number("--cull-back-faces", args.cull_back_faces, hi=90.0, strict=False)  # deg, or None
     t = {}
     t0 = time.perf_counter()
-    tree, cache, t["load"], unit_exp = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
-                                                     progress=not args.json)
+    tree, cache, t["load"], unit_exp, ctx = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
+                                                          progress=not args.json)
     t["build"] = time.perf_counter() - t0 - t["load"]
     if out is not None:  # the format must hold the mesh's coordinates (float32 PLY: |x| < 3.4e38)
         from optim._mesh import check_writable
 
         check_writable(out, np.ldexp(tree.vertices, -unit_exp) if unit_exp else tree.vertices)
     view = build_view(tree.vertices, args, unit_exp)
+    held = {n for n in optim.CONTEXT_NAMES if tree.has_derived(n)}  # read from the cache
     keys = _timed(t, "score", optim.score, tree, view, model, args.metric)
+    built = {n for n in optim.CONTEXT_NAMES if tree.has_derived(n)} - held
+    context = save_context_quietly(tree, ctx) if built else ("hit" if held else "off")
     mesh = None  # with --cull-back-faces and --budget, the search extracts the cut's mesh itself
     if margin is not None and budget is not None:
         vc = _timed(t, "cut", optim.visible_budget_cut, tree, keys, budget, view, margin_deg=margin, monotone="trust")
@@ -411,6 +442,7 @@ def simplify(args) -> dict:
         "lighting": view.lighting.to_dict() if view.lighting is not None else "baked",
         "tree_method": args.method,
         "tree_cache": cache,
+        "context_cache": context,  # the first view's per-tree work: "hit" (read), "saved" or "off"
         "unit_exponent": unit_exp,  # the tree, view and keys used the mesh scaled by 2**unit_exponent
         "out": str(out) if out is not None else None,
         "render": rendered,
@@ -439,7 +471,7 @@ def run(args) -> int:
     table.add_row("imperceptible beyond", f"{res['imperceptible_distance']:.3g} x the viewing distance")
     if res["metric"] != "perceptual":
         table.add_row("boundary key", f"{res['boundary_key']:.3g} px")
-    table.add_row("tree", f"{res['tree_method']} (cache {res['tree_cache']})")
+    table.add_row("tree", f"{res['tree_method']} (cache {res['tree_cache']}, first-view context {res['context_cache']})")
     table.add_row("time (ms)", ", ".join(f"{k} {v:.1f}" for k, v in res["timings_ms"].items()))
     if res["out"]:
         table.add_row("written", res["out"])

@@ -23,7 +23,7 @@ from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut,
 from ._flips import Flips, cut_flips
 from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
 from ._view import View
-from ._context import ScoringContext, scoring_context
+from ._context import CONTEXT_NAMES, ScoringContext, load_context, save_context, scoring_context
 from ._relight import cull_columns, neighbour_normals, normal_cones, region_columns, relit_columns, slab_half_width
 from ._score import NodeTerms, node_terms, score, default_model, prepare_motion_table
 from ._points import (PointHierarchy, PointTerms, Traversal, build_points, load_points, point_terms, points_from_mesh,

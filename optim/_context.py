@@ -22,7 +22,7 @@ from pmetric import PlodError
 from ._levels import Levels
 from ._tree import VertexTree
 
-__all__ = ["ScoringContext", "scoring_context"]
+__all__ = ["CONTEXT_NAMES", "ScoringContext", "load_context", "save_context", "scoring_context"]
 
 #: internal nodes per chunk of the per-view programs (1 MiB float32 columns)
 _CHUNK = 262144
@@ -271,3 +271,90 @@ def scoring_context(tree, lighting=None) -> ScoringContext:
         return tree.derived("scoring_context", lambda: _with_columns(base, region_columns(tree)))
     return tree.derived(f"scoring_context.relit.{light_key(lighting)}",
                         lambda: _with_columns(base, relit_columns(tree, lighting)))
+
+
+# ----------------------------------------------------------------------------------------------
+# the per-tree part of the first view, kept beside a cached tree
+#: the derived values of a tree that :func:`save_context` keeps (the costly part of a first view: the
+#: walk over the faces the folds leave and the normal cones; seconds to tens of seconds at 10^6 triangles)
+CONTEXT_NAMES = ("relight.normal_cones", "relight.cull_columns", "relight.neighbour_normals")
+
+
+def _context_version() -> str:
+    """numpy's version and a hash of the source of the modules that build the :data:`CONTEXT_NAMES`
+    values: a stored context is read back only by the code (and numpy) that made it."""
+    import hashlib
+    import inspect
+
+    from . import _levels, _mesh, _normal_cube, _relight, _tree
+
+    h = hashlib.sha256(np.__version__.encode())
+    for m in (_relight, _normal_cube, _levels, _mesh, _tree):
+        h.update(inspect.getsource(m).encode())
+    return h.hexdigest()
+
+
+def _digest(arrays) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def save_context(tree: VertexTree, path) -> bool:
+    """Write the :data:`CONTEXT_NAMES` values ``tree`` holds (made by a first view) to ``path`` (.npz,
+    atomically), with the tree's sizes, :func:`_context_version` and a SHA-256 of the arrays; False
+    when the tree holds none of them. A cache of the first view's work: :func:`load_context` puts them
+    back into another process's copy of the same tree."""
+    import json
+
+    from pmetric import atomic_path
+
+    names = [n for n in CONTEXT_NAMES if tree.has_derived(n)]
+    if not names:
+        return False
+    arrays = {f"{i}.{j}": np.asarray(a) for i, n in enumerate(names) for j, a in enumerate(tree.derived(n, None))}
+    meta = {"names": names, "version": _context_version(), "sizes": [tree.n_nodes, tree.n_vertices, tree.n_triangles],
+            "digest": _digest(arrays[k] for k in sorted(arrays))}
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, __meta__=np.array(json.dumps(meta)), **arrays)
+    return True
+
+
+def load_context(tree: VertexTree, path) -> bool:
+    """Put the values of a :func:`save_context` file into ``tree``'s cache; False (and nothing put)
+    when the file is missing, unreadable, made by other code or numpy, for a tree of other sizes, or its
+    arrays do not match their digest: the first view then builds them as usual."""
+    import json
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["__meta__"]))
+            if (meta.get("version") != _context_version()
+                    or meta.get("sizes") != [tree.n_nodes, tree.n_vertices, tree.n_triangles]):
+                return False
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        if _digest(arrays[k] for k in sorted(arrays)) != meta.get("digest"):
+            return False
+        values = {}
+        for i, n in enumerate(meta["names"]):
+            if n not in CONTEXT_NAMES:
+                return False
+            parts, j = [], 0
+            while f"{i}.{j}" in arrays:
+                parts.append(arrays[f"{i}.{j}"])
+                j += 1
+            values[n] = tuple(parts)
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):  # damaged or not ours
+        return False
+    for n, v in values.items():
+        for a in v:
+            a.flags.writeable = False
+        tree.derived(n, lambda v=v: v)  # kept where the tree already holds its own
+    return True

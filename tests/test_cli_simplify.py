@@ -45,11 +45,21 @@ def test_budget_json_and_output_file(capsys, mesh_file, tmp_path, cache):
     v, f, _ = optim.load_mesh(out)
     assert f.shape[0] == res["output_triangles"] and v.shape[0] == res["output_vertices"]
     assert not list(tmp_path.glob(".small.ply.*"))  # no temporary file left behind
-    assert len(list(cache.glob("*.npz"))) == 1
-    # second run: the tree comes from the cache and the result is identical
+    trees = [p for p in cache.glob("*.npz") if not p.name.startswith("ctx-")]
+    assert len(trees) == 1 and res["context_cache"] == "saved"
+    assert (cache / f"ctx-{trees[0].name}").is_file()  # the first view's per-tree work, beside the tree
+    # second run: the tree and its first-view work come from the cache and the result is identical
     code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--method", "octree")
     res2 = json.loads(stdout)
     assert res2["tree_cache"] == "hit" and res2["output_triangles"] == res["output_triangles"]
+    assert res2["context_cache"] == "hit" and res2["imperceptible_distance"] == res["imperceptible_distance"]
+    # a relit view needs the neighbours' normals too: built, then kept (the file is replaced)
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--method", "octree", "--light", "1,1,1")
+    res3 = json.loads(stdout)
+    assert res3["context_cache"] == "saved"
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--method", "octree", "--light", "1,1,1")
+    res4 = json.loads(stdout)
+    assert res4["context_cache"] == "hit" and res4["imperceptible_distance"] == res3["imperceptible_distance"]
 
 
 def test_imperceptible_mode_and_view_flags(capsys, mesh_file):

@@ -422,3 +422,43 @@ def test_cull_columns_and_neighbour_normals_from_one_walk_equal_their_own_builds
     assert optim.neighbour_normals(first) is nn_first
     for a, b in zip(optim.cull_columns(first), alone_cols):
         assert np.array_equal(a, b)
+
+
+def test_saved_context_gives_the_same_keys_and_rejects_what_it_cannot_trust(tmp_path, monkeypatch):
+    """The first view's per-tree work (optim.save_context) put back into another copy of the tree
+    (optim.load_context) gives identical keys without rebuilding; a missing, foreign, damaged or
+    stale file is refused (False, nothing put back), never used."""
+    import optim._context as C
+
+    v, f = optim.bumpy_sphere(2, seed=8, amplitude=0.2)
+    view = optim.View.framing(v, lighting=optim.Lighting())
+    a = optim.build_tree(v, f)
+    assert not optim.save_context(a, tmp_path / "none.npz")  # nothing made yet: nothing written
+    want = optim.score(a, view)
+    path = tmp_path / "ctx.npz"
+    assert optim.save_context(a, path)
+    b = optim.build_tree(v, f)
+    assert optim.load_context(b, path)
+    assert all(b.has_derived(n) for n in optim.CONTEXT_NAMES)
+    for n in optim.CONTEXT_NAMES:
+        for x, y in zip(a.derived(n, None), b.derived(n, None)):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+    np.testing.assert_array_equal(optim.score(b, view), want)
+
+    def refused(p, tree=None):
+        tree = optim.build_tree(v, f) if tree is None else tree
+        ok = optim.load_context(tree, p)
+        return not ok and not any(tree.has_derived(n) for n in optim.CONTEXT_NAMES)
+
+    assert refused(tmp_path / "missing.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip file")
+    assert refused(tmp_path / "junk.npz")
+    other = optim.build_tree(*optim.bumpy_sphere(1, seed=8, amplitude=0.2)[:2])
+    assert refused(path, other)  # a tree of other sizes
+    data = bytearray(path.read_bytes())  # one byte of an array changed: the digest no longer matches
+    i = len(data) // 2
+    data[i] ^= 0xFF
+    (tmp_path / "damaged.npz").write_bytes(bytes(data))
+    assert refused(tmp_path / "damaged.npz")
+    monkeypatch.setattr(C, "_context_version", lambda: "other code")  # made by other code or numpy
+    assert refused(path)
