@@ -89,7 +89,8 @@ class ScoringContext:
     ``sizes`` the number of real (unpadded) nodes in each; ``levels`` (:class:`optim._levels.Levels`)
     the level structure of the M internal nodes for the two tree passes (culling down, maximum up);
     ``node`` (M,) tree index of each; ``n_nodes`` N; ``scene_lum`` the darkest and brightest relative
-    luminance of the model.
+    luminance of the model; ``origin`` (3,) float64 the origin of the node coordinates (the tree's
+    :attr:`optim.VertexTree.origin`, 0 for other tree-like objects): views are moved into its frame.
     """
 
     chunks: tuple
@@ -99,6 +100,7 @@ class ScoringContext:
     node: np.ndarray
     n_nodes: int
     scene_lum: tuple
+    origin: np.ndarray
 
     @property
     def m(self) -> int:
@@ -235,7 +237,8 @@ def _build(tree, relit: bool = False) -> ScoringContext:
                 geom_error=np.asarray(tree.geom_error)[node], slab=np.asarray(slab)[node])
     chunks, sizes = _chunks(cols, mask, len(node))
     scene = _scene_lum(lum_min, lum_max)
-    return ScoringContext(chunks, tuple(_host_masks(ch) for ch in chunks), sizes, levels, node, n, scene)
+    origin = np.asarray(getattr(tree, "origin", np.zeros(3)), np.float64)
+    return ScoringContext(chunks, tuple(_host_masks(ch) for ch in chunks), sizes, levels, node, n, scene, origin)
 
 
 def _with_columns(base: ScoringContext, cols: dict) -> ScoringContext:

@@ -598,7 +598,7 @@ def node_terms(tree, view) -> NodeTerms:
     """Cull flags, silhouette flags, angular size, eccentricity, velocity and contrast of every node
     for ``view`` (the inputs of the perceptual key; see :mod:`optim._terms` for units)."""
     ctx = scoring_context(tree, getattr(view, "lighting", None))
-    vp = view_params(view, ctx.scene_lum, getattr(tree, "origin", None))
+    vp = view_params(view, ctx.scene_lum, ctx.origin)
     has_gaze, has_motion = view.gaze_px is not None, view.previous is not None
     table = table_device()
     parts = [terms_jit(ch, vp, facing_flags(ch, vp, table), has_gaze, has_motion) for ch in ctx.chunks]
@@ -631,7 +631,7 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
     if metric not in METRICS:
         raise PlodError(f"score: metric must be one of {METRICS}, got {metric!r}")
     ctx = scoring_context(tree, getattr(view, "lighting", None))
-    vp = view_params(view, ctx.scene_lum, getattr(tree, "origin", None))
+    vp = view_params(view, ctx.scene_lum, ctx.origin)
     ktab = None
     if metric == "perceptual":
         import pmetric
