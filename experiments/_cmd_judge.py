@@ -4,8 +4,9 @@ Both meshes are rendered for one view (the original framed at ``--object-deg`` o
 field, seen from ``--direction``) and the result is scored against the original by FovVideoVDP
 [Man21] (JOD, 10 = indistinguishable; foveated at the gaze, ``--gaze-deg`` deg to the right of the
 object's centre) and FLIP [And20] (mean error, 0 = identical); see ``experiments/judge.py``.
-``--mode relit`` shades each mesh from its own normals per pixel, ``baked`` draws the vertex colours
-or pre-lit intensities plod's model assumes, ``both`` does both. ``--light DX,DY,DZ[,AMBIENT]``: the
+``--mode relit`` shades each mesh from its own normals per pixel (those its file carries, as ``plod
+simplify`` writes them, else its faces'), ``baked`` draws the vertex colours or pre-lit intensities
+plod's model assumes, ``both`` does both. ``--light DX,DY,DZ[,AMBIENT]``: the
 direction towards the light in object space and the ambient term (diffuse = 1 - ambient; default the
 ``optim.Lighting`` default). Needs the ``judge`` extra (torch, pyfvvdp; FovVideoVDP is CC BY-NC 4.0).
 
@@ -110,7 +111,7 @@ def judge_files(args) -> dict:
         path = Path(getattr(args, key))
         if not path.is_file():
             raise PlodError(f"mesh file not found: {str(path)!r}")
-        meshes[key] = optim.load_mesh(path)
+        meshes[key] = optim.load_mesh(path, normals=True)  # relit: shaded from the file's normals if it has them
     view = J.offset_gaze_view(meshes["original"][0], gaze, object_deg=object_deg, direction=direction)
     try:
         import pyfvvdp  # noqa: F401
@@ -135,6 +136,8 @@ def judge_files(args) -> dict:
     return {
         "original": str(args.original), "result": str(args.result),
         "triangles": {"original": int(len(meshes["original"][1])), "result": int(len(meshes["result"][1]))},
+        # relit shading: the vertex normals the file carries ("file", e.g. plod simplify's), else its faces'
+        "normals": {k: "faces" if m[3] is None else "file" for k, m in meshes.items()},
         "view": {"object_deg": object_deg, "direction": direction, "gaze_deg": gaze, "size": [w, h],
                  "fixation_px": list(res.fixation_px), "pixels_per_degree": res.pixels_per_degree},
         "lighting": light.to_dict(),

@@ -77,6 +77,11 @@ def register(sub) -> None:
                         "exactly those a back-face-culling renderer skips; a margin keeps them for a moving "
                         "eye) and count --budget in front-facing triangles; the output carries the whole "
                         "cut's vertex normals (PLY, OBJ, GLB), which the renderer should shade from")
+    p.add_argument("--normals", metavar="region|faces|none", default="region",
+                   help="vertex normals written with the mesh for a renderer that relights it: region (default: "
+                        "each vertex the mean input normal of the surface it stands for, which shades closest "
+                        "to the input), faces (recomputed from the simplified faces) or none (the renderer "
+                        "makes its own, as faces; with --cull-back-faces the whole cut's are written)")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
     p.add_argument("--render", metavar="OUT.png", default=None,
                    help="render original and simplified for this view, with their FLIP difference, to a PNG")
@@ -376,6 +381,9 @@ def simplify(args) -> dict:
         raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
     _check_view_flags(args)
     margin = _number("--cull-back-faces", args.cull_back_faces, hi=90.0, strict=False)  # deg, or None
+    if args.normals not in ("region", "faces", "none"):
+        raise PlodError(f"--normals must be region, faces or none, got {args.normals!r}")
+    normals = None if args.normals == "none" else args.normals  # optim.extract's choice
     t = {}
     t0 = time.perf_counter()
     tree, cache, t["load"], unit_exp, ctx = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
@@ -392,7 +400,8 @@ def simplify(args) -> dict:
     context = save_context_quietly(tree, ctx) if built else ("hit" if held else "off")
     mesh = None  # with --cull-back-faces and --budget, the search extracts the cut's mesh itself
     if margin is not None and budget is not None:
-        vc = _timed(t, "cut", optim.visible_budget_cut, tree, keys, budget, view, margin_deg=margin, monotone="trust")
+        vc = _timed(t, "cut", optim.visible_budget_cut, tree, keys, budget, view, margin_deg=margin, monotone="trust",
+                    normals=normals or "faces")
         cut, mesh = vc.cut, vc.mesh
     else:
         cut = _timed(t, "cut", _cut, tree, keys, args, budget)
@@ -400,12 +409,12 @@ def simplify(args) -> dict:
         raise PlodError(f"--budget {budget} is below the smallest non-empty cut for this view "
                         f"({optim.min_nonempty_budget(tree, keys, monotone='trust')} triangles)")
     if mesh is None:
-        mesh = _timed(t, "extract", optim.extract, tree, cut)
+        mesh = _timed(t, "extract", optim.extract, tree, cut, normals)
         if margin is not None:
             mesh = _timed(t, "cull", optim.drop_back_faces, mesh, view, margin)
     from experiments.render import mesh_parts  # light: numpy only at import
 
-    v2, f2, c2, n2 = mesh_parts(mesh)  # normals only with --cull-back-faces
+    v2, f2, c2, n2 = mesh_parts(mesh)  # no normals with --normals none (unless --cull-back-faces)
     if margin is not None and len(f2) == 0:
         raise PlodError("every triangle of the cut faces away from the eye: nothing to write (check --eye)")
     if unit_exp:
@@ -429,6 +438,7 @@ def simplify(args) -> dict:
         "output_triangles": int(f2.shape[0]),
         "cut_triangles": int(cut.triangles),  # with --cull-back-faces: before the back faces were dropped
         "cull_back_faces_margin_deg": margin,
+        "normals": "none" if n2 is None else (normals or "faces"),  # the vertex normals written with the mesh
         "output_vertices": int(v2.shape[0]),
         "metric": args.metric,
         "model": type(model).__name__,

@@ -67,6 +67,10 @@ DEFAULTS = {
     # stay whole meshes at plod's (front-facing) triangle count
     "face_cull": False,
     "face_cull_margin_deg": 0.0,
+    # the vertex normals plod's cuts carry for the relit renderer (optim.extract's ``normals``): "faces",
+    # recomputed from the cut's faces (what a renderer does with a mesh that carries none; the whole cut's
+    # with face culling), or "region", each vertex its region's mean input normal
+    "normals": "faces",
     # the imperceptible cuts of the code before lights in the model (default: OUT/before/results.jsonl)
     "before": "",
 }
@@ -161,12 +165,14 @@ def plod_mesh(tree, keys, view, cfg, target: int | None = None, *, cut=None):
     import optim
 
     cull, margin = bool(cfg.get("face_cull")), float(cfg.get("face_cull_margin_deg", 0.0))
+    normals = cfg.get("normals", "faces")
     if cut is None and cull:
-        vc = optim.visible_budget_cut(tree, keys, target, view, margin_deg=margin, monotone="trust")
+        vc = optim.visible_budget_cut(tree, keys, target, view, margin_deg=margin, monotone="trust", normals=normals)
         return vc.mesh, vc.cut.triangles
     if cut is None:
         cut = optim.budget_cut(tree, keys, target, monotone="trust")
-    mesh = optim.extract(tree, cut)
+    # "faces" without culling: the mesh as a file without normals gives it (the renderer makes the same ones)
+    mesh = optim.extract(tree, cut, None if normals == "faces" and not cull else normals)
     return (optim.drop_back_faces(mesh, view, margin) if cull else mesh), cut.triangles
 
 
@@ -340,10 +346,14 @@ def write_report(rows, cfg, command, out, images=()):
     if cfg.get("face_cull"):
         L.append(f"**Face culling on**: plod's cuts (imperceptible, perceptual, size, geometric, models) are drawn "
                  f"without the triangles that face away from the eye by more than {cfg['face_cull_margin_deg']:g} deg "
-                 "(`optim.drop_back_faces`, shading from the whole cut's normals, so the view's image is the whole "
+                 "(`optim.drop_back_faces`, shading from the whole cut's normals unless they carry their own, so the view's image is the whole "
                  "cut's), and budgets count front-facing triangles (`optim.visible_budget_cut`). The peers are whole "
                  "meshes at plod's front-facing triangle count. *triangles* columns count drawn triangles; "
                  "`results.jsonl` has each cut's whole count as `cut_triangles`.\n")
+    if cfg.get("normals", "faces") == "region":
+        L.append("**Carried normals**: plod's cuts carry each vertex's region normal (`optim.extract(..., "
+                 "normals=\"region\")`: the mean input normal of the surface its node stands for), and the "
+                 "relit renderer shades from them; the peers are shaded from normals of their own faces.\n")
     errors = [r for r in rows if r["method"] == "error"]
     if errors:
         L.append(f"**{len(errors)} cells failed**: " + "; ".join(f"{r['cell']}: {r['error']}" for r in errors[:5]) + "\n")
@@ -488,6 +498,12 @@ def worst_images(rows, cfg, out, model_lights=True):
     return images
 
 
+def optim_normals():
+    from optim import NORMALS
+
+    return NORMALS
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.accuracy", description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default=None, help="TOML overrides of the defaults (unknown keys are refused)")
@@ -500,6 +516,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     defaults = {**DEFAULTS, **(QUICK if args.quick else {})}
     cfg = load_config(args.config, defaults)
+    if cfg["normals"] not in optim_normals():
+        raise PlodError(f"accuracy config: normals must be one of {', '.join(optim_normals())}, got {cfg['normals']!r}")
     if args.out:
         cfg["out"] = args.out
     out = repo_path(cfg["out"])

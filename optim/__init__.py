@@ -4,7 +4,7 @@ Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) 
 (``_tree``, built by ``_build``; clustering in ``_meshopt_tree`` (default) / ``_qem`` / ``_octree``, normal cube in
 ``_normal_cube``, level-by-level propagation in ``_levels``) -> view (``_view``, with its lights) -> score folds
 (``_score``: classify -> terms -> key -> propagate, over the per-tree ``_context``, what a renderer shows in
-``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``; per-view back-face removal and the budget cut that counts
+``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``; the normals a cut carries in ``_normals``; per-view back-face removal and the budget cut that counts
 only front-facing triangles in ``_facecull``); fitting of model
 constants in ``optim.fit``. Beside the meshes: the perceptual point-hierarchy traversal of [LH01 §4] / [RL00] in
 ``_points``, and Reddy's perceptual terrain quadtree [Red01] in ``_terrain``.
@@ -21,6 +21,7 @@ from ._meshopt_tree import MeshoptHierarchy, meshopt_parents
 from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut, min_nonempty_budget, repair_monotone,
                    threshold_cut)
 from ._flips import Flips, cut_flips
+from ._normals import NORMALS, cut_normals, region_normals
 from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
 from ._view import View
 from ._context import CONTEXT_NAMES, ScoringContext, load_context, save_context, scoring_context

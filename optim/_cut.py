@@ -295,7 +295,7 @@ def threshold_cut(tree, keys, threshold: float = 1.0, *, monotone: str = "check"
     return Cut(unfolded, tri, float(ki[bnd].max()), "imperceptible")
 
 
-def extract(tree, cut):
+def extract(tree, cut, normals: str | None = None):
     """The simplified mesh of a cut.
 
     Each input vertex is replaced by its representative, the highest folded node above it (its
@@ -305,32 +305,46 @@ def extract(tree, cut):
 
     Args:
         tree: :class:`optim.VertexTree`; cut: a :class:`Cut` or an (N,) bool ``unfolded`` array.
+        normals: None, or the vertex normals the mesh carries for a renderer that relights it
+            (:mod:`optim._normals`): ``"region"``, each vertex the mean normal of the input surface its
+            node stands for [Coh98]; ``"faces"``, recomputed from the cut's faces (what a renderer does
+            for a mesh without normals).
 
     Returns:
-        ``(vertices (V', 3) float64, faces (T', 3) int32, colors (V', 3) float32 or None)``.
+        ``(vertices (V', 3) float64, faces (T', 3) int32, colors (V', 3) float32 or None)``, and with
+        ``normals`` a fourth element, ``(V', 3) float64`` unit vertex normals.
 
     Where the process may use two or more cores, independent parts (the kept triangles and the boundary;
     half of the corners; the vertex positions and the faces) run at once on a side thread
     (:mod:`optim._parallel`), with the same result.
     """
-    return _extract_parts(tree, _unfolded_mask(tree, cut))[:3]
+    from ._normals import check_normals, cut_normals
+
+    check_normals(normals, "extract")
+    v, f, c, _, nodes, rows = _extract_parts(tree, _unfolded_mask(tree, cut), normals == "region")
+    if normals is None:
+        return v, f, c
+    return v, f, c, cut_normals(tree, v, f, nodes, normals, rows)
 
 
-def _extract_parts(tree, unf):
-    """:func:`extract` of a checked (N,) bool ``unfolded`` and the input triangle of each output face:
-    ``(vertices, faces, colors, keep (T',) intp ascending)``, ``faces[i]`` being input triangle
-    ``keep[i]`` with its corners replaced by their representatives (shared with :mod:`optim._flips`)."""
+def _extract_parts(tree, unf, region: bool = False):
+    """:func:`extract` of a checked (N,) bool ``unfolded``, the input triangle of each output face and the
+    node of each output vertex: ``(vertices, faces, colors, keep (T',) intp ascending, nodes (V',), rows)``,
+    ``faces[i]`` being input triangle ``keep[i]`` with its corners replaced by their representatives
+    (shared with :mod:`optim._flips`); ``rows``: with ``region``, the nodes' rows of
+    :func:`optim.region_normals` (float32), else None."""
     parts = _boundary_corners(tree, unf)
     if parts is None:  # not closed under ancestors
-        return _reference_parts(tree, unf)
-    return _mesh_from_boundary(tree, *parts)
+        return _reference_parts(tree, unf) + (None,)
+    return _mesh_from_boundary(tree, *parts, region=region)
 
 
-def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
-    """Second stage of :func:`extract`: the mesh ``(vertices, faces, colors, keep)`` of
+def _mesh_from_boundary(tree, bnd, fb, keep, rep=None, region: bool = False):
+    """Second stage of :func:`extract`: the mesh ``(vertices, faces, colors, keep, nodes, rows)`` of
     :func:`_boundary_corners`'s arrays (the boundary nodes, ordered by their name, the smallest input
     vertex each represents: the used ones, in the same order, are the output vertices). ``rep``:
-    :func:`_representatives` of ``bnd`` when already made."""
+    :func:`_representatives` of ``bnd`` when already made; ``region``: also the nodes' region normal rows
+    (gathered on this thread while the side thread makes the positions), else ``rows`` is None."""
     nb = bnd.size
     used = np.zeros(nb, dtype=bool)
     used[fb.ravel()] = True
@@ -340,8 +354,13 @@ def _mesh_from_boundary(tree, bnd, fb, keep, rep=None):
     newidx = np.empty(nb, dtype=np.int32)  # read only at used boundary ids
     newidx[srt] = np.arange(srt.size, dtype=np.int32)
     faces = newidx.take(fb)
+    rows = None
+    if region:
+        from ._normals import region_normals
+
+        rows = _take_rows(region_normals(tree), nodes)
     verts, colors = drawn.result()
-    return verts, faces, colors, keep
+    return verts, faces, colors, keep, nodes, rows
 
 
 def _drawn_vertices(tree, nodes, verts=None):
@@ -501,7 +520,7 @@ def _extract_reference(tree, cut):
 
 
 def _reference_parts(tree, unf):
-    """:func:`_extract_reference` plus ``keep``, as :func:`_extract_parts` returns them."""
+    """:func:`_extract_reference` plus ``keep`` and ``nodes``, as :func:`_extract_parts` returns them."""
     V = tree.n_vertices
     # highest folded nodes (folded, parent unfolded): each leaf lies under exactly one; their
     # depth-first leaf ranges tile 0..V-1, so a forward fill maps every leaf position to its node
@@ -533,7 +552,7 @@ def _reference_parts(tree, unf):
     if tree.color is not None:
         colors = tree.colors.take(out_v, axis=0) if tree.colors is not None else tree.color.take(nodes, axis=0)
         colors[inner] = tree.color.take(nodes.take(inner), axis=0)
-    return verts, faces, colors, keep
+    return verts, faces, colors, keep, nodes
 
 
 def _extract_index(tree):

@@ -93,39 +93,48 @@ def _front_count(tree, cut, eye: np.ndarray, margin_deg: float):
     return int(len(f) - np.count_nonzero(away)), parts
 
 
-def _finish(tree, bnd, fb, keep, rep, n, away):
+def _finish(tree, bnd, fb, keep, rep, n, away, normals="faces"):
     """:func:`drop_back_faces` of the cut counted by :func:`_front_count` (its ``parts``), reusing the count's
-    positions, face normals and facing flags (the same values: the faces' corners are the same points)."""
+    positions, face normals and facing flags (the same values: the faces' corners are the same points),
+    carrying ``normals`` (:func:`optim.extract`'s choice)."""
     from ._cut import _mesh_from_boundary
+    from ._normals import cut_normals
 
-    v, f, c, _ = _mesh_from_boundary(tree, bnd, fb, keep, rep=rep)
-    return _without_back_faces(np.asarray(v, np.float64), f, c, n, away)
+    region = normals == "region"
+    v, f, c, _, nodes, rows = _mesh_from_boundary(tree, bnd, fb, keep, rep=rep, region=region)
+    v = np.asarray(v, np.float64)
+    given = cut_normals(tree, v, f, nodes, normals, rows) if region else None
+    return _without_back_faces(v, f, c, n, away, given)
 
 
-def _without_back_faces(v, f, c, n, away):
-    """The mesh ``(v, f, c)`` without its faces flagged ``away``, and the unit vertex normals of all its faces
-    from their normal columns ``n`` (the tail of :func:`drop_back_faces`)."""
+def _without_back_faces(v, f, c, n, away, normals=None):
+    """The mesh ``(v, f, c)`` without its faces flagged ``away``, and ``normals``, or when None the unit
+    vertex normals of all its faces from their normal columns ``n`` (the tail of :func:`drop_back_faces`)."""
     from ._normal_cube import _unit
     from ._tree import _vertex_normals
 
-    return v, f[~away], c, _unit(_vertex_normals(v, f, np.column_stack(n)))
+    if normals is None:
+        normals = _unit(_vertex_normals(v, f, np.column_stack(n)))
+    return v, f[~away], c, normals
 
 
 def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
-    """``(vertices, faces, colors, normals)``: the mesh ``(vertices, faces, colors)`` of
+    """``(vertices, faces, colors, normals)``: the mesh ``(vertices, faces, colors[, normals])`` of
     :func:`optim.extract` without the triangles that face away (:func:`facing_away`). Vertices and colours
     are kept as they are (unreferenced ones included), so indices stay valid; ``normals`` (V, 3) float64
-    are the unit area-weighted vertex normals of the mesh *with* its back faces, so that a renderer
-    shading from them draws exactly the full mesh's image (recomputing normals from the remaining faces
-    would tilt the silhouette vertices' normals)."""
+    are the mesh's own when it carries them (``extract(..., normals=...)``), else the unit area-weighted
+    vertex normals of the mesh *with* its back faces, so that a renderer shading from them draws exactly
+    the full mesh's image (recomputing normals from the remaining faces would tilt the silhouette
+    vertices' normals)."""
     eye, m = _eye(view_or_eye), _check_margin(margin_deg)
     v, f, c = mesh[:3]
+    given = mesh[3] if len(mesh) > 3 else None
     v = np.asarray(v, np.float64)
     f = np.asarray(f)
     if f.size == 0:
-        return v, f, c, np.zeros_like(v)
+        return v, f, c, (np.zeros_like(v) if given is None else given)
     p0, n = face_normal_columns(v, f)  # once, for the facing test and the vertex normals
-    return _without_back_faces(v, f, c, n, _away(p0, n, eye, m))
+    return _without_back_faces(v, f, c, n, _away(p0, n, eye, m), given)
 
 
 class VisibleCut(NamedTuple):
@@ -147,7 +156,8 @@ class VisibleCut(NamedTuple):
 
 
 def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: float = 0.0, monotone: str = "check",
-                       tolerance: float = 0.005, max_evaluations: int = 12, hint: int | None = None) -> VisibleCut:
+                       tolerance: float = 0.005, max_evaluations: int = 12, hint: int | None = None,
+                       normals: str = "faces") -> VisibleCut:
     """The largest :func:`optim.budget_cut` of ``keys`` whose front-facing triangles (not
     :func:`facing_away` from the eye by more than ``margin_deg``) number at most ``budget``.
 
@@ -160,9 +170,14 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     milliseconds per 10^5 triangles); the returned cut's mesh is finished from those arrays. ``hint``: a
     cut budget to try first (for a moving camera, the previous frame's ``cut_budget``: the front-facing
     share changes little between frames, so the search often ends at its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
-    (:func:`drop_back_faces`)."""
+    (:func:`drop_back_faces`) and carries ``normals`` (``"faces"``: the whole cut's; ``"region"``: each
+    vertex its region's mean normal, :func:`optim.extract`)."""
     from ._cut import _check_budget, budget_cut, extract
+    from ._normals import check_normals
 
+    if normals is None:
+        raise PlodError("visible_budget_cut: normals must be 'region' or 'faces' (the mesh always carries normals)")
+    check_normals(normals, "visible_budget_cut")
     budget = _check_budget(budget)
     if not (0.0 <= tolerance < 1.0) or int(max_evaluations) < 1:
         raise PlodError("visible_budget_cut: tolerance must be in [0, 1) and max_evaluations >= 1")
@@ -242,5 +257,6 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
         at(lo)
     cut, n = tried[lo]
     parts = fits[1] if fits[0] == lo else None
-    mesh = _finish(tree, *parts) if parts is not None else drop_back_faces(extract(tree, cut), eye, margin)
+    mesh = (_finish(tree, *parts, normals=normals) if parts is not None
+            else drop_back_faces(extract(tree, cut, normals), eye, margin))
     return VisibleCut(cut, mesh, n, lo, len(tried), reason)

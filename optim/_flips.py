@@ -85,7 +85,7 @@ def cut_flips(tree, cut, *, degenerate_tol: float = 1e-6) -> Flips:
     if not np.isfinite(tol) or tol < 0:
         raise PlodError(f"cut_flips: degenerate_tol must be a finite number >= 0, got {degenerate_tol!r}")
     unf = _unfolded_mask(tree, cut, "cut_flips")
-    verts, faces, _, keep = _extract_parts(tree, unf)
+    verts, faces, _, keep = _extract_parts(tree, unf)[:4]
     T = int(faces.shape[0])
     if T == 0:
         empty = np.zeros(0, dtype=np.int64)

@@ -299,7 +299,7 @@ def _count_nonmanifold(f: np.ndarray, nv: int) -> int:
 # files
 
 
-def load_mesh(path: str | os.PathLike):
+def load_mesh(path: str | os.PathLike, *, normals: bool = False):
     """Read a triangle mesh (PLY, OBJ, OFF, STL, GLB/GLTF, ... via trimesh).
 
     A scene (several meshes) is concatenated into one mesh. Polygons are triangulated by trimesh.
@@ -311,7 +311,9 @@ def load_mesh(path: str | os.PathLike):
     changes only those names and comments. Binary data in a text format is an error.
 
     Returns:
-        ``(vertices (V, 3) float64, faces (T, 3) int32, colors (V, 3) float32 in [0, 1] or None)``.
+        ``(vertices (V, 3) float64, faces (T, 3) int32, colors (V, 3) float32 in [0, 1] or None)``; with
+        ``normals=True`` a fourth element, the vertex normals the file carries ((V, 3) float64 unit, as
+        :func:`save_mesh` writes them: PLY, OBJ, a one-mesh GLB) or None when it carries none.
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -338,14 +340,17 @@ def load_mesh(path: str | os.PathLike):
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise PlodError(f"cannot read mesh file {str(p)!r}: not a readable mesh "
                         f"({type(exc).__name__}: {exc})") from None
+    given = _file_normals(obj)
     if isinstance(obj, trimesh.Scene):
         geoms = [g for g in obj.dump() if isinstance(g, trimesh.Trimesh)] if obj.geometry else []
         if not geoms:
             raise PlodError(f"mesh file {str(p)!r} contains no triangle mesh")
         if len(geoms) == 1:
+            if given is not None and not np.array_equal(geoms[0].vertices, given[0]):
+                given = None  # placed by a transform: its normals would need turning too
             obj = geoms[0]
         else:
-            obj = trimesh.util.concatenate(geoms)
+            given, obj = None, trimesh.util.concatenate(geoms)
     if not isinstance(obj, trimesh.Trimesh):
         raise PlodError(f"mesh file {str(p)!r} contains no triangles (got a {type(obj).__name__})")
     vertices = np.asarray(obj.vertices, dtype=np.float64)
@@ -364,7 +369,31 @@ def load_mesh(path: str | os.PathLike):
                 colors = (vc[:, :3].astype(np.float32) / 255.0).astype(np.float32)
     except Exception:  # visuals that cannot give vertex colours: treat as uncoloured
         colors = None
-    return vertices, faces.astype(np.int32), colors
+    if not normals:
+        return vertices, faces.astype(np.int32), colors
+    nrm = None
+    if given is not None and given[1].shape == vertices.shape and np.isfinite(given[1]).all():
+        length = np.linalg.norm(given[1], axis=1, keepdims=True)
+        nrm = np.divide(given[1], length, out=np.zeros_like(given[1]), where=length > 0)
+    return vertices, faces.astype(np.int32), colors, nrm
+
+
+def _file_normals(obj):
+    """``(vertices, normals)`` float64 of the one mesh in ``obj`` (a trimesh Trimesh or a one-geometry Scene)
+    when its file gave vertex normals (trimesh keeps them in the mesh's cache until its geometry changes),
+    else None."""
+    import trimesh
+
+    if isinstance(obj, trimesh.Scene):
+        if len(obj.geometry) != 1:
+            return None
+        obj = next(iter(obj.geometry.values()))
+    try:
+        if not isinstance(obj, trimesh.Trimesh) or "vertex_normals" not in obj._cache.cache:
+            return None
+        return np.asarray(obj.vertices, np.float64), np.asarray(obj.vertex_normals, np.float64)
+    except Exception:  # a trimesh without that cache: no file normals
+        return None
 
 
 _TEXT_FORMATS = ("obj", "off", "ply", "stl")

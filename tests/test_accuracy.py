@@ -111,3 +111,27 @@ def test_views_are_seeded_and_not_from_above():
 def test_bad_procedural_spec_is_one_error():
     with pytest.raises(ValueError, match="procedural"):
         A.load_meshes({"meshes": [], "procedural": ["cube:3"]})
+
+
+def test_bad_normals_in_config_is_one_line_error(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('normals = "smooth"\n')
+    with pytest.raises(A.PlodError, match="normals must be one of region, faces") as e:
+        A.main(["--config", str(cfg), "--quick", "--out", str(tmp_path / "out")])
+    assert "\n" not in str(e.value) and not (tmp_path / "out").exists()
+
+
+def test_plod_mesh_carries_the_configured_normals():
+    """``normals = "region"``: plod's cuts carry optim.extract's region normals, with and without culling;
+    ``"faces"`` without culling: no normals (the renderer makes the faces' own)."""
+    v, f, c = optim.bumpy_sphere(3, seed=2, colors=True)
+    tree = optim.build_tree(v, f, c)
+    view = optim.View.framing(v, direction=(0.2, 0.3, 1.0), lighting=optim.Lighting())
+    keys = optim.score(tree, view)
+    cfg = dict(A.DEFAULTS, normals="region")
+    m, _ = A.plod_mesh(tree, keys, view, cfg, 300)
+    cut = optim.budget_cut(tree, keys, 300, monotone="trust")
+    np.testing.assert_array_equal(m[3], optim.extract(tree, cut, "region")[3])
+    assert len(A.plod_mesh(tree, keys, view, dict(A.DEFAULTS), 300)[0]) == 3
+    mc, _ = A.plod_mesh(tree, keys, view, dict(cfg, face_cull=True), 300)
+    assert len(mc) == 4 and np.allclose(np.linalg.norm(mc[3][np.unique(mc[1])], axis=1), 1.0, atol=1e-6)

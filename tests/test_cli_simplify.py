@@ -102,6 +102,38 @@ def test_cull_back_faces_counts_front_facing_triangles(capsys, mesh_file, tmp_pa
     assert b"property float nx" in out.read_bytes()[:400]
 
 
+def test_output_carries_the_chosen_normals(capsys, mesh_file, tmp_path):
+    """--normals: region (the default) writes each vertex's region normal (optim.extract's), faces the
+    normals of the written faces, none no normals; the JSON says which."""
+    import trimesh
+
+    argv = (mesh_file, "--budget", 300, "--json", "--method", "octree", "--no-cache", "--light", "1,1,1")
+    got = {}
+    for how in ("region", "faces", "none"):
+        out = tmp_path / f"{how}.ply"
+        extra = () if how == "region" else ("--normals", how)
+        code, stdout, _ = _run(capsys, *argv, *extra, "--out", out)
+        assert code == 0 and json.loads(stdout)["normals"] == how
+        got[how] = out
+    assert b"property float nx" not in got["none"].read_bytes()[:400]
+    region = trimesh.load(got["region"], process=False)
+    faces = trimesh.load(got["faces"], process=False)
+    np.testing.assert_array_equal(region.faces, faces.faces)
+    v, f = np.asarray(faces.vertices, np.float64), np.asarray(faces.faces)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    want = np.zeros_like(v)
+    for j in range(3):
+        np.add.at(want, f[:, j], cross)
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(faces.vertex_normals, want, atol=1e-5)
+    tree = optim.build_tree(*optim.load_mesh(mesh_file)[:2], method="octree")
+    rn = np.asarray(region.vertex_normals)
+    assert np.allclose(np.linalg.norm(rn, axis=1), 1.0, atol=1e-5)
+    # a sphere's region normals point outward like its faces', but are not them
+    ang = np.degrees(np.arccos(np.clip((rn * want).sum(1), -1, 1)))
+    assert ang.max() < 45 and np.median(ang) > 0.1 and tree.n_triangles == 1280
+
+
 @pytest.mark.parametrize(
     "argv, msg",
     [
@@ -119,6 +151,7 @@ def test_cull_back_faces_counts_front_facing_triangles(capsys, mesh_file, tmp_pa
         (["--budget", "10", "--target", "0,0,0"], "--target needs --eye"),
         (["--budget", "10", "--cull-back-faces", "90"], "--cull-back-faces must be"),
         (["--budget", "10", "--cull-back-faces", "x"], "--cull-back-faces needs a number"),
+        (["--budget", "10", "--normals", "smooth"], "--normals must be region, faces or none"),
     ],
 )
 def test_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):

@@ -145,3 +145,28 @@ def test_plod_judge_cli(tmp_path, capsys, vdp):
         assert what in err and err.count("\n") == 1
     assert main(["judge", str(a), str(tmp_path / "missing.ply")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_plod_judge_shades_from_the_normals_a_file_carries(tmp_path, capsys, vdp):
+    """A coarse sphere written with one normal for every vertex (+z, a flat-shaded disc under the light) is
+    judged from those normals, and so looks much farther from a fine sphere than the same file without
+    normals (shaded from its faces, nearly the sphere's radial normals)."""
+    from experiments.cli import main
+
+    a, plain, carried = tmp_path / "a.ply", tmp_path / "plain.ply", tmp_path / "carried.ply"
+    optim.save_mesh(a, *optim.icosphere(5))
+    v, f = optim.icosphere(2)
+    optim.save_mesh(plain, v, f)
+    optim.save_mesh(carried, v, f, normals=np.tile([0.0, 0.0, 1.0], (len(v), 1)))
+    got = {}
+    for b in (plain, carried):
+        js = tmp_path / f"{b.stem}.json"
+        rc = main(["judge", str(a), str(b), "--size", "160,90", "--json", str(js)])
+        err = capsys.readouterr().err
+        if rc != 0 and "OpenGL" in err:
+            pytest.skip(err)
+        assert rc == 0, err
+        got[b.stem] = json.loads(js.read_text())
+    assert got["plain"]["normals"] == {"original": "faces", "result": "faces"}
+    assert got["carried"]["normals"] == {"original": "faces", "result": "file"}
+    assert got["carried"]["results"][0]["jod"] < got["plain"]["results"][0]["jod"] - 1.0, got

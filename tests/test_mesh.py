@@ -244,3 +244,18 @@ def test_bumpy_torus_is_a_closed_outward_genus_one_surface():
     assert optim.bumpy_torus(1000, 500)[1].shape[0] == 1_000_000
     with pytest.raises(ValueError, match="nu and nv must be >= 3"):
         optim.bumpy_torus(2, 10)
+
+
+@pytest.mark.parametrize("ext", ["ply", "obj", "glb", "off"])
+def test_load_mesh_gives_the_normals_a_file_carries(tmp_path, ext):
+    v, f = optim.icosphere(2)
+    n = np.tile([0.0, 0.6, 0.8], (len(v), 1))
+    with_n = optim.save_mesh(tmp_path / f"n.{ext}", v, f, normals=n)
+    without = optim.save_mesh(tmp_path / f"p.{ext}", v, f)
+    got = optim.load_mesh(with_n, normals=True)
+    assert len(got) == 4 and len(optim.load_mesh(with_n)) == 3
+    if ext == "off":  # OFF holds no normals
+        assert got[3] is None
+    else:
+        np.testing.assert_allclose(got[3], n, atol=1e-6)
+    assert optim.load_mesh(without, normals=True)[3] is None
