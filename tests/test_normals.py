@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import optim
 from optim._normals import cut_normals, region_normals
@@ -134,3 +136,31 @@ def test_region_normals_look_closer_to_the_input_under_the_judge():
     jod = {how: judge(ref, optim.extract(tree, cut, normals=how), view, mode="relit", lighting=optim.Lighting(),
                       size=(320, 180), heatmap=False).jod for how in ("faces", "region")}
     assert jod["region"] > jod["faces"] + 0.15, jod  # measured 9.06 against 8.77
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), exp=st.integers(-30, 30), budget=st.floats(0.05, 1.0),
+       method=st.sampled_from(["meshopt", "qem", "octree"]))
+def test_carried_normals_are_unit_at_any_scale(seed, exp, budget, method):
+    """Any cut of a jittered sphere with some degenerate triangles, at scales 2^-30 .. 2^30: every vertex a
+    face uses carries a finite unit normal (region or its faces'), the same directions at every scale."""
+    rng = np.random.default_rng(seed)
+    v, f = optim.icosphere(2)
+    v = v * (1 + 0.2 * rng.random((len(v), 1)))
+    f = f.copy()
+    f[rng.integers(0, len(f), 3), 2] = f[rng.integers(0, len(f), 3), 1]  # a few zero-area triangles
+    tree = optim.build_tree(v, f, method=method)
+    big = optim.build_tree(np.ldexp(v, exp), f, method=method)
+    keys = rng.random(tree.n_nodes)
+    n = max(1, int(budget * tree.n_triangles))
+    for how in ("region", "faces"):
+        got = []
+        for t in (tree, big):
+            cut = optim.budget_cut(t, keys, n, monotone="repair")
+            vv, ff, _, nn = optim.extract(t, cut, how)
+            used = np.unique(ff)
+            assert np.isfinite(nn).all()
+            length = np.linalg.norm(nn[used], axis=1)
+            assert np.all((np.abs(length - 1) < 1e-6) | (length == 0))
+            got.append(nn)
+        np.testing.assert_allclose(got[0], got[1], atol=1e-5)
