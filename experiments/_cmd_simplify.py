@@ -67,8 +67,11 @@ def register(sub) -> None:
     p.add_argument("--model", default=DEFAULT_MODEL, metavar="NAME|FILE.json",
                    help=f"model name (see plod models), eccentric(NAME) or a fitted model .json "
                         f"(default {DEFAULT_MODEL})")
-    p.add_argument("--method", choices=("meshopt", "qem", "octree"), default="meshopt",
-                   help="vertex tree builder (default meshopt: nested meshoptimizer simplifications)")
+    p.add_argument("--method", choices=("auto", "meshopt", "hybrid", "qem", "octree"), default="auto",
+                   help="vertex tree builder: meshopt (nested meshoptimizer simplifications), hybrid (quadric "
+                        "collapses below a fifth of the triangles, meshoptimizer's levels above), qem, octree; "
+                        "default auto: hybrid with --light, meshopt without (the trees the judge rated best "
+                        "for relit and pre-lit meshes, reports/accuracy/what_we_tried.md)")
     p.add_argument("--no-cache", action="store_true",
                    help="do not read or write the tree cache (kept in $PLOD_CACHE, default ~/.cache/plod; "
                         "PLOD_CACHE set to an empty string also means no cache)")
@@ -156,12 +159,16 @@ def cache_dir() -> Path | None:
 
 
 def _file_key(path: Path, method: str) -> str:
-    """SHA-256 of the mesh file's bytes, the tree method and the tree format: the cache key."""
+    """SHA-256 of the mesh file's bytes, the tree method (the hybrid's with its ``HYBRID_KEEP``) and the tree
+    format: the cache key."""
     import hashlib
 
     from optim._tree import TREE_FORMAT
 
-    h = hashlib.sha256(f"{TREE_FORMAT}|{method}|{path.suffix.lower()}|".encode())
+    from optim._build import HYBRID_KEEP
+
+    tag = f"{method}{HYBRID_KEEP!r}" if method == "hybrid" else method  # the hybrid's split is part of its tree
+    h = hashlib.sha256(f"{TREE_FORMAT}|{tag}|{path.suffix.lower()}|".encode())
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 22), b""):
             h.update(block)
@@ -386,7 +393,8 @@ def simplify(args) -> dict:
     normals = None if args.normals == "none" else args.normals  # optim.extract's choice
     t = {}
     t0 = time.perf_counter()
-    tree, cache, t["load"], unit_exp, ctx = tree_for_file(mesh_path, args.method, use_cache=not args.no_cache,
+    method = args.method if args.method != "auto" else ("hybrid" if args.light is not None else "meshopt")
+    tree, cache, t["load"], unit_exp, ctx = tree_for_file(mesh_path, method, use_cache=not args.no_cache,
                                                           progress=not args.json)
     t["build"] = time.perf_counter() - t0 - t["load"]
     if out is not None:  # the format must hold the mesh's coordinates (float32 PLY: |x| < 3.4e38)
@@ -450,7 +458,7 @@ def simplify(args) -> dict:
         "flipped_triangles": int(flips.flipped),
         "degenerate_triangles": int(flips.degenerate),
         "lighting": view.lighting.to_dict() if view.lighting is not None else "baked",
-        "tree_method": args.method,
+        "tree_method": method,  # --method auto resolved
         "tree_cache": cache,
         "context_cache": context,  # the first view's per-tree work: "hit" (read), "saved" or "off"
         "unit_exponent": unit_exp,  # the tree, view and keys used the mesh scaled by 2**unit_exponent

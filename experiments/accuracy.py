@@ -71,6 +71,8 @@ DEFAULTS = {
     # recomputed from the cut's faces (what a renderer does with a mesh that carries none; the whole cut's
     # with face culling), or "region", each vertex its region's mean input normal
     "normals": "faces",
+    # plod's vertex tree (optim.build_tree's method)
+    "method": "meshopt",
     # the imperceptible cuts of the code before lights in the model (default: OUT/before/results.jsonl)
     "before": "",
 }
@@ -119,15 +121,15 @@ class _Mesh:
     """A mesh of the sweep and its trees: ``relit`` (its own colours or none) and ``baked`` (for an
     uncoloured mesh, built from the original's lighting baked into grey vertex colours)."""
 
-    def __init__(self, name, v, f, c):
+    def __init__(self, name, v, f, c, method: str = "meshopt"):
         import optim
 
         self.name, self.v, self.f, self.c = name, v, f, c
         t0 = time.perf_counter()
-        self.tree = {"relit": optim.build_tree(v, f, c)}
+        self.tree = {"relit": optim.build_tree(v, f, c, method=method)}
         if c is None:
             self.baked_colors = baked_grey(v, f)
-            self.tree["baked"] = optim.build_tree(v, f, self.baked_colors)
+            self.tree["baked"] = optim.build_tree(v, f, self.baked_colors, method=method)
         else:
             self.baked_colors = c
             self.tree["baked"] = self.tree["relit"]
@@ -263,7 +265,7 @@ def run_sweep(cfg, *, resume=False, model_lights=True, progress=None):
         if name not in built:
             built.clear()
             mesh = next(m for m in meshes if m[0] == name)
-            built[name] = _Mesh(*mesh)
+            built[name] = _Mesh(*mesh, method=cfg["method"])
         mesh = built[name]
         t0 = time.perf_counter()
         try:
@@ -350,6 +352,8 @@ def write_report(rows, cfg, command, out, images=()):
                  "cut's), and budgets count front-facing triangles (`optim.visible_budget_cut`). The peers are whole "
                  "meshes at plod's front-facing triangle count. *triangles* columns count drawn triangles; "
                  "`results.jsonl` has each cut's whole count as `cut_triangles`.\n")
+    if cfg.get("method", "meshopt") != "meshopt":
+        L.append(f"**Tree**: plod's cuts come from `optim.build_tree(method=\"{cfg['method']}\")`.\n")
     if cfg.get("normals", "faces") == "region":
         L.append("**Carried normals**: plod's cuts carry each vertex's region normal (`optim.extract(..., "
                  "normals=\"region\")`: the mean input normal of the surface its node stands for), and the "
@@ -476,7 +480,7 @@ def worst_images(rows, cfg, out, model_lights=True):
     for k, (method, r, b, peer) in enumerate(picks):
         if r["mesh"] not in built:
             built.clear()
-            built[r["mesh"]] = _Mesh(*meshes[r["mesh"]])
+            built[r["mesh"]] = _Mesh(*meshes[r["mesh"]], method=cfg["method"])
         mesh = built[r["mesh"]]
         d = np.asarray(r["direction"])
         lighting = r["lighting"]
@@ -516,6 +520,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     defaults = {**DEFAULTS, **(QUICK if args.quick else {})}
     cfg = load_config(args.config, defaults)
+    from optim._tree import METHODS
+
+    if cfg["method"] not in METHODS:
+        raise PlodError(f"accuracy config: method must be one of {', '.join(METHODS)}, got {cfg['method']!r}")
     if cfg["normals"] not in optim_normals():
         raise PlodError(f"accuracy config: normals must be one of {', '.join(optim_normals())}, got {cfg['normals']!r}")
     if args.out:

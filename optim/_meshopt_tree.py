@@ -249,13 +249,16 @@ def _fill_unreached(F: np.ndarray, r: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def meshopt_parents(v: np.ndarray, f: np.ndarray, colors: np.ndarray | None = None, *, ratio: float = 0.8,
-                    color_weight: float = COLOR_WEIGHT) -> MeshoptHierarchy:
+                    color_weight: float = COLOR_WEIGHT, start=None) -> MeshoptHierarchy:
     """Hierarchy of nested meshoptimizer simplifications over the vertices (module docstring).
 
     Args:
         v: (V, 3) vertices; f: (T, 3) faces (validated: every vertex used); colors: (V, 3) or None.
         ratio: each level's triangle target as a fraction of the previous level's, in (0, 1).
         color_weight: meshoptimizer's attribute weight of each colour channel.
+        start: None, or the bottom of a hybrid hierarchy, :func:`optim._qem.qem_prefix`'s ``(parent,
+            cur, faces, removed)``: the levels then start from those faces (over the surviving input
+            vertices) and those nodes; the removed vertices rank lowest in ``survival``.
     """
     from scipy.sparse.csgraph import connected_components
     import scipy.sparse as sp
@@ -279,6 +282,18 @@ def meshopt_parents(v: np.ndarray, f: np.ndarray, colors: np.ndarray | None = No
     F = np.asarray(f, dtype=np.int64)
     level_tris = [F.shape[0]]
     k = 0
+    if start is not None:  # a hybrid: qem collapses below, their nodes at level 1
+        p0, cur0, F0, removed = start
+        parent[:p0.size] = p0
+        node_level[V:p0.size] = 1
+        cur, nxt, F, k = np.array(cur0, np.int64), p0.size, np.asarray(F0, np.int64), 1
+        level_tris.append(F.shape[0])
+        survival[~removed] = 2
+        inF0 = np.zeros(V, bool)
+        inF0[F.ravel()] = True
+        gone = np.flatnonzero(~removed & ~inF0)  # components the collapses took to no triangle: one node each
+        if gone.size:
+            retired.append(np.stack([cur[gone], gone], axis=1))
     while F.shape[0] > 1:
         inF = np.zeros(V, bool)  # compact: meshoptimizer's work follows the level's size
         inF[F.ravel()] = True

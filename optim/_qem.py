@@ -163,41 +163,10 @@ def qem_parents(v: np.ndarray, f: np.ndarray, aggressiveness: float = 7.0, diago
     Returns:
         parent (V + M,) int64: leaves 0..V-1 are the vertices, one root (-1).
     """
-    import fast_simplification
-
     V = v.shape[0]
-    vs = np.asarray(v, dtype=np.float64)
-    if diagonal is not None and V:
-        lo = vs.min(0)
-        ext = float(np.linalg.norm(vs.max(0) - lo))
-        vs = (vs - lo) * (float(diagonal) / ext) if ext > 0 else vs
-    _, _, col = fast_simplification.simplify(
-        np.ascontiguousarray(vs, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int32),
-        target_count=0, agg=float(aggressiveness), return_collapses=True,
-    )
-    col = np.asarray(col, dtype=np.int64).reshape(-1, 2)
+    col = qem_collapses(v, f, aggressiveness, diagonal)
     C = col.shape[0]
-    i0, i1 = col[:, 0], col[:, 1]
-    if C and (col.min() < 0 or col.max() >= V or np.bincount(i1, minlength=V).max() > 1):
-        raise RuntimeError("fast_simplification returned an inconsistent collapse sequence")
-    k = np.arange(C)
-    # previous collapse with the same i0 (its node is child 0 of collapse k), else the leaf i0
-    o = np.lexsort((k, i0))
-    same = np.zeros(C, dtype=bool)
-    same[1:] = i0[o][1:] == i0[o][:-1]
-    prev = np.full(C, -1, dtype=np.int64)
-    prev[o[same]] = o[np.flatnonzero(same) - 1]
-    child0 = np.where(prev >= 0, V + prev, i0)
-    # latest collapse where a vertex was i0 (its final node), for i1: all such collapses precede k
-    last = np.full(V, -1, dtype=np.int64)
-    last[i0[o]] = o  # o is sorted by (i0, k): the last write per i0 is the latest k
-    l1 = last[i1]
-    if np.any(l1 >= k):
-        raise RuntimeError("fast_simplification collapsed a vertex after it was removed")
-    child1 = np.where(l1 >= 0, V + l1, i1)
-    parent = np.full(V + C, -1, dtype=np.int64)
-    parent[child0] = V + k
-    parent[child1] = V + k
+    parent, _ = _binary_nodes(col, V)
     roots = np.flatnonzero(parent < 0)
     if roots.size == 1:
         return parent
@@ -217,6 +186,96 @@ def qem_parents(v: np.ndarray, f: np.ndarray, aggressiveness: float = 7.0, diago
     has = top >= 0
     out[remap[has]] = remap[top[has]]
     return out
+
+
+def qem_collapses(v: np.ndarray, f: np.ndarray, aggressiveness: float = 7.0, diagonal: float | None = None) -> np.ndarray:
+    """fast-simplification's full collapse sequence ``(C, 2)`` int64: collapse ``k`` merges vertex
+    ``[k, 1]`` into ``[k, 0]`` (input numbering), in order; the mesh scaled to ``diagonal`` first as in
+    :func:`qem_parents`."""
+    import fast_simplification
+
+    V = v.shape[0]
+    vs = np.asarray(v, dtype=np.float64)
+    if diagonal is not None and V:
+        lo = vs.min(0)
+        ext = float(np.linalg.norm(vs.max(0) - lo))
+        vs = (vs - lo) * (float(diagonal) / ext) if ext > 0 else vs
+    _, _, col = fast_simplification.simplify(
+        np.ascontiguousarray(vs, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int32),
+        target_count=0, agg=float(aggressiveness), return_collapses=True,
+    )
+    col = np.asarray(col, dtype=np.int64).reshape(-1, 2)
+    if len(col) and (col.min() < 0 or col.max() >= V or np.bincount(col[:, 1], minlength=V).max() > 1):
+        raise RuntimeError("fast_simplification returned an inconsistent collapse sequence")
+    return col
+
+
+def qem_prefix(v: np.ndarray, f: np.ndarray, keep: float, aggressiveness: float = 7.0,
+               diagonal: float | None = None):
+    """The bottom of a hybrid hierarchy: fast-simplification's collapses, in order, while the collapsed
+    mesh keeps more than ``keep`` of the input's triangles. Returns ``(parent (V + C',) int64`` (leaves
+    0..V-1, then one binary node per collapse, -1 where the node is still a root), ``cur (V,)`` the
+    current node of every vertex, ``faces (T', 3)`` the input faces mapped to their surviving vertices
+    without the degenerate ones (input numbering), ``removed (V,) bool)``."""
+    V, T = v.shape[0], f.shape[0]
+    col = qem_collapses(v, f, aggressiveness, diagonal)
+    # each collapse removes about two triangles: start there, then trim or extend to the target
+    f64 = np.asarray(f, np.int64)
+
+    def mapped(c):
+        r = np.arange(V)
+        r[col[:c, 1]] = col[:c, 0]
+        # compose: a survivor of an early collapse may be removed later (pointer jumping to a fixpoint)
+        while True:
+            nr = r[r]
+            if np.array_equal(nr, r):
+                break
+            r = nr
+        g = r[f64]
+        ok = (g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])
+        return g[ok]
+
+    goal = keep * T
+    lo, hi = 0, len(col)
+    while lo < hi:  # the largest C' whose mesh still has more than goal triangles (counts fall with C')
+        mid = (lo + hi + 1) // 2
+        if len(mapped(mid)) > goal:
+            lo = mid
+        else:
+            hi = mid - 1
+    C = lo
+    parent, cur = _binary_nodes(col[:C], V)
+    removed = np.zeros(V, bool)
+    removed[col[:C, 1]] = True
+    return parent, cur, mapped(C), removed
+
+
+def _binary_nodes(col: np.ndarray, V: int):
+    """``(parent (V + C,) int64, cur (V,) int64)``: one binary node ``V + k`` per collapse ``k`` of ``col``
+    (its children: the current nodes of the two vertices), -1 where a node is still a root; ``cur``: the
+    latest node of each vertex (its leaf if it never took part)."""
+    C = col.shape[0]
+    i0, i1 = col[:, 0], col[:, 1]
+    k = np.arange(C)
+    # previous collapse with the same i0 (its node is child 0 of collapse k), else the leaf i0
+    o = np.lexsort((k, i0))
+    same = np.zeros(C, dtype=bool)
+    same[1:] = i0[o][1:] == i0[o][:-1]
+    prev = np.full(C, -1, dtype=np.int64)
+    prev[o[same]] = o[np.flatnonzero(same) - 1]
+    child0 = np.where(prev >= 0, V + prev, i0)
+    # latest collapse where a vertex was i0 (its final node), for i1: all such collapses precede k
+    last = np.full(V, -1, dtype=np.int64)
+    last[i0[o]] = o  # o is sorted by (i0, k): the last write per i0 is the latest k
+    l1 = last[i1]
+    if np.any(l1 >= k):
+        raise RuntimeError("fast_simplification collapsed a vertex after it was removed")
+    child1 = np.where(l1 >= 0, V + l1, i1)
+    parent = np.full(V + C, -1, dtype=np.int64)
+    parent[child0] = V + k
+    parent[child1] = V + k
+    cur = np.where(last >= 0, V + last, np.arange(V))
+    return parent, cur
 
 
 def _root_of(parent: np.ndarray, V: int) -> np.ndarray:

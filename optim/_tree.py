@@ -36,7 +36,7 @@ __all__ = [
 
 TREE_FORMAT = "plod-vertex-tree-2"  # 2: the origin (trees of format 1 read with origin 0)
 _READ_FORMATS = ("plod-vertex-tree-1", TREE_FORMAT)
-METHODS = ("qem", "octree", "meshopt")
+METHODS = ("qem", "octree", "meshopt", "hybrid")
 
 # ----------------------------------------------------------------------------------------------
 # intensity

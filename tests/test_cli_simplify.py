@@ -102,6 +102,16 @@ def test_cull_back_faces_counts_front_facing_triangles(capsys, mesh_file, tmp_pa
     assert b"property float nx" in out.read_bytes()[:400]
 
 
+def test_hybrid_tree_from_the_command_line(capsys, mesh_file):
+    code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--method", "hybrid", "--no-cache")
+    res = json.loads(stdout)
+    assert code == 0 and res["tree_method"] == "hybrid" and 0 < res["output_triangles"] <= 300
+    # the default (auto): the hybrid tree for a relit view, meshopt for a pre-lit one
+    for extra, want in ((("--light", "1,1,1"), "hybrid"), ((), "meshopt")):
+        code, stdout, _ = _run(capsys, mesh_file, "--budget", 300, "--json", "--no-cache", *extra)
+        assert code == 0 and json.loads(stdout)["tree_method"] == want
+
+
 def test_output_carries_the_chosen_normals(capsys, mesh_file, tmp_path):
     """--normals: region (the default) writes each vertex's region normal (optim.extract's), faces the
     normals of the written faces, none no normals; the JSON says which."""

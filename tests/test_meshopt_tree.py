@@ -208,3 +208,45 @@ def test_small_and_odd_meshes(trees):
     one = optim.build_tree(TET_V[:3], TET_F[:1], method="meshopt")
     one.check()
     assert one.n_triangles == 1
+
+
+# ------------------------------------------------------------------ the hybrid tree (qem below, meshopt above)
+@pytest.mark.parametrize("mesh", sorted(MESHES))
+def test_hybrid_structure(mesh):
+    """One tree over every vertex, binary qem nodes below and meshoptimizer's levels above, for every odd
+    mesh (islands whose collapses leave no triangle included)."""
+    t = optim.build_tree(*MESHES[mesh], method="hybrid")
+    t.check()
+    N, V = t.n_nodes, t.n_vertices
+    assert t.method == "hybrid" and int(np.sum(t.parent < 0)) == 1
+    assert np.all(t.parent[1:] < np.arange(1, N)) and np.all(t.child_count[t.child_count > 0] >= 2)
+    np.testing.assert_array_equal(np.sort(t.vertex_node), np.flatnonzero(t.child_count == 0))
+    assert len(optim.extract(t, t.child_count > 0)[1]) == t.n_triangles
+
+
+def test_hybrid_ends_are_meshopt_and_qem(monkeypatch):
+    """Keeping every triangle for meshoptimizer gives the meshopt tree exactly; the qem prefix's nodes are
+    fast-simplification's first collapses, and its faces the input's under them."""
+    import optim._build as B
+    from optim._qem import _binary_nodes, qem_collapses, qem_prefix
+
+    v, f, c = _validated("bumpy")
+    monkeypatch.setattr(B, "HYBRID_KEEP", 1.0)
+    a = optim.build_tree(v, f, c, method="hybrid")
+    b = optim.build_tree(v, f, c, method="meshopt")
+    np.testing.assert_array_equal(a.parent, b.parent)
+    np.testing.assert_array_equal(a.position, b.position)
+    parent, cur, faces, removed = qem_prefix(v, f, 0.25, diagonal=100.0)
+    col = qem_collapses(v, f, diagonal=100.0)
+    C = parent.size - len(v)
+    assert 0 < C < len(col) and removed.sum() == C
+    np.testing.assert_array_equal(parent, _binary_nodes(col[:C], len(v))[0])
+    # the slow way: apply the collapses one by one
+    r = np.arange(len(v))
+    for i0, i1 in col[:C]:
+        r[r == i1] = i0
+    g = r[f]
+    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])]
+    np.testing.assert_array_equal(faces, g)
+    assert 0.25 * len(f) < len(faces) <= 0.25 * len(f) + 4  # the last collapse that keeps more than a quarter
+    assert not removed[faces].any() and np.all(parent[cur[~removed]] == -1)

@@ -140,7 +140,7 @@ def test_region_normals_look_closer_to_the_input_under_the_judge():
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10_000), exp=st.integers(-30, 30), budget=st.floats(0.05, 1.0),
-       method=st.sampled_from(["meshopt", "qem", "octree"]))
+       method=st.sampled_from(["meshopt", "qem", "octree", "hybrid"]))
 def test_carried_normals_are_unit_at_any_scale(seed, exp, budget, method):
     """Any cut of a jittered sphere with some degenerate triangles, at scales 2^-30 .. 2^30: every vertex a
     face uses carries a finite unit normal (region or its faces'), the same directions at every scale."""

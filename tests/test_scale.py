@@ -28,7 +28,7 @@ def _run(v, f, s, method):
     return tree, keys, optim.imperceptible_cut(tree, view), optim.budget_cut(tree, keys, 200)
 
 
-@pytest.mark.parametrize("method", ["meshopt", "qem"])
+@pytest.mark.parametrize("method", ["meshopt", "qem", "hybrid"])
 def test_tree_and_keys_do_not_depend_on_units(mesh, method):
     v, f = mesh
     tree0, keys0, imp0, bud0 = _run(v, f, 1.0, method)
@@ -48,7 +48,7 @@ def test_tree_and_keys_do_not_depend_on_units(mesh, method):
 FAR = ((1e7, -5e6, 0.0), (0.0, 0.0, -2.0 ** 31), (4096.0, 4096.0, 4096.0))
 
 
-@pytest.mark.parametrize("method", ["meshopt", "qem", "octree"])
+@pytest.mark.parametrize("method", ["meshopt", "qem", "octree", "hybrid"])
 def test_a_far_mesh_gives_the_tree_keys_and_cuts_of_the_same_mesh_near_0(mesh, method):
     """Translation: the mesh moved far from 0 for its size (float32 coordinates kept about 1 unit of
     precision at 1e7: other tree, keys and cuts) builds the same tree relative to its origin, the same
