@@ -186,7 +186,7 @@ def main(argv=None) -> int:
     ap.add_argument("--views", type=int, default=8, help="views per mesh (default 8)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per view; the best counts (default 3)")
     ap.add_argument("--budget-fraction", type=float, default=0.1, help="budget as a fraction of the input")
-    ap.add_argument("--method", choices=("meshopt", "qem", "octree"), default="meshopt",
+    ap.add_argument("--method", choices=("meshopt", "hybrid", "qem", "octree"), default="meshopt",
                     help="tree builder (default meshopt)")
     ap.add_argument("--metric", choices=("perceptual", "size", "geometric"), default="perceptual")
     ap.add_argument("--lighting", choices=("relit", "baked"), default="relit",
