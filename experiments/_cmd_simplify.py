@@ -388,7 +388,7 @@ def simplify(args) -> dict:
         raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
     _check_view_flags(args)
     margin = _number("--cull-back-faces", args.cull_back_faces, hi=90.0, strict=False)  # deg, or None
-    if args.normals not in ("region", "faces", "none"):
+    if args.normals not in (*optim.NORMALS, "none"):
         raise PlodError(f"--normals must be region, faces or none, got {args.normals!r}")
     normals = None if args.normals == "none" else args.normals  # optim.extract's choice
     t = {}

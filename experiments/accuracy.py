@@ -502,12 +502,6 @@ def worst_images(rows, cfg, out, model_lights=True):
     return images
 
 
-def optim_normals():
-    from optim import NORMALS
-
-    return NORMALS
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.accuracy", description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default=None, help="TOML overrides of the defaults (unknown keys are refused)")
@@ -520,12 +514,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     defaults = {**DEFAULTS, **(QUICK if args.quick else {})}
     cfg = load_config(args.config, defaults)
+    from optim import NORMALS
     from optim._tree import METHODS
 
     if cfg["method"] not in METHODS:
         raise PlodError(f"accuracy config: method must be one of {', '.join(METHODS)}, got {cfg['method']!r}")
-    if cfg["normals"] not in optim_normals():
-        raise PlodError(f"accuracy config: normals must be one of {', '.join(optim_normals())}, got {cfg['normals']!r}")
+    if cfg["normals"] not in NORMALS:
+        raise PlodError(f"accuracy config: normals must be one of {', '.join(NORMALS)}, got {cfg['normals']!r}")
     if args.out:
         cfg["out"] = args.out
     out = repo_path(cfg["out"])

@@ -219,7 +219,6 @@ def qem_prefix(v: np.ndarray, f: np.ndarray, keep: float, aggressiveness: float 
     without the degenerate ones (input numbering), ``removed (V,) bool)``."""
     V, T = v.shape[0], f.shape[0]
     col = qem_collapses(v, f, aggressiveness, diagonal)
-    # each collapse removes about two triangles: start there, then trim or extend to the target
     f64 = np.asarray(f, np.int64)
 
     def mapped(c):
@@ -237,17 +236,19 @@ def qem_prefix(v: np.ndarray, f: np.ndarray, keep: float, aggressiveness: float 
 
     goal = keep * T
     lo, hi = 0, len(col)
-    while lo < hi:  # the largest C' whose mesh still has more than goal triangles (counts fall with C')
+    faces = None  # mapped(lo), once found
+    while lo < hi:  # binary search: the largest C' whose mesh still has more than goal triangles (counts fall with C')
         mid = (lo + hi + 1) // 2
-        if len(mapped(mid)) > goal:
-            lo = mid
+        g = mapped(mid)
+        if len(g) > goal:
+            lo, faces = mid, g
         else:
             hi = mid - 1
     C = lo
     parent, cur = _binary_nodes(col[:C], V)
     removed = np.zeros(V, bool)
     removed[col[:C, 1]] = True
-    return parent, cur, mapped(C), removed
+    return parent, cur, (mapped(C) if faces is None else faces), removed
 
 
 def _binary_nodes(col: np.ndarray, V: int):

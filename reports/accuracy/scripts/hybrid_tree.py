@@ -6,7 +6,6 @@ relit with region normals, no culling, 960x540; each tree's perceptual cut at th
     OMP_NUM_THREADS=1 PYOPENGL_PLATFORM=egl .venv/bin/python reports/accuracy/scripts/hybrid_tree.py OUT.jsonl [meshes] [keeps]
 """
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -15,9 +14,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import optim  # noqa: E402
 import optim._build as B  # noqa: E402
-from pooled_priority import HELD_OUT, SIZE, emit, held_out_mesh, judge_fn  # noqa: E402
-from experiments.accuracy import DEFAULTS, _view  # noqa: E402
-from experiments.experiment import view_directions  # noqa: E402
+from pooled_priority import HELD_OUT, SIZE, held_out_mesh  # noqa: E402
+from tree_choice import tree_rows  # noqa: E402
+from experiments.accuracy import DEFAULTS  # noqa: E402
 
 
 def main():
@@ -31,25 +30,8 @@ def main():
         for kp in keeps:
             B.HYBRID_KEEP = kp
             trees[f"hybrid{kp:g}"] = optim.build_tree(mesh.v, mesh.f, mesh.c, method="hybrid")
-        for vi, d in enumerate(view_directions(2, 55, name)):
-            view = _view(mesh, d, 0.0, "relit", cfg, True)
-            J = judge_fn(mesh, view, "relit")
-            for b in (0.03, 0.08, 0.2):
-                t0 = time.perf_counter()
-                row = dict(mesh=name, view=vi, budget=b)
-                target = None
-                for tn, tree in trees.items():
-                    n = max(int(b * tree.n_triangles), 1) if target is None else target
-                    cut = optim.budget_cut(tree, optim.score(tree, view), n, monotone="trust")
-                    m = optim.extract(tree, cut, "region")
-                    target = target or len(m[1])
-                    row[tn] = J(m)
-                    row[tn + "_flips"] = int(optim.cut_flips(tree, cut).flipped)
-                for peer in ("meshoptimizer", "fast_simplification"):
-                    row[peer] = J(mesh.peer(peer, "relit", target))
-                row["s"] = round(time.perf_counter() - t0, 1)
-                emit(out, row)
-
+        tree_rows(out, name, mesh, trees, cfg,
+                  lambda tn, tree, cut, m, b: {tn + "_flips": int(optim.cut_flips(tree, cut).flipped)})
 
 if __name__ == "__main__":
     main()

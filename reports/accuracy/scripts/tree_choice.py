@@ -53,26 +53,32 @@ def main():
             for b in (0.03, 0.08, 0.2):
                 cut = optim.budget_cut(tree, gk, int(b * tree.n_triangles), monotone="trust")
                 crit[tn, b] = surface_error(v, f, vn, optim.extract(tree, cut))
-        for vi, d in enumerate(view_directions(2, 55, name)):
-            view = _view(mesh, d, 0.0, "relit", cfg, True)
-            J = judge_fn(mesh, view, "relit")
-            for b in (0.03, 0.08, 0.2):
-                t0 = time.perf_counter()
-                row = dict(mesh=name, view=vi, budget=b)
-                target = None
-                for tn, tree in trees.items():
-                    keys = optim.score(tree, view)
-                    n = max(int(b * tree.n_triangles), 1) if target is None else target
-                    cut = optim.budget_cut(tree, keys, n, monotone="trust")
-                    m = optim.extract(tree, cut, "region")
-                    target = target or len(m[1])
-                    row[tn] = J(m)
-                    row[tn + "_tris"] = len(m[1])
-                    row[tn + "_d2"], row[tn + "_ncos"] = crit[tn, b]
-                for peer in ("meshoptimizer", "fast_simplification"):
-                    row[peer] = J(mesh.peer(peer, "relit", target))
-                row["s"] = round(time.perf_counter() - t0, 1)
-                emit(out, row)
+        tree_rows(out, name, mesh, trees, cfg, lambda tn, tree, cut, m, b: {
+            tn + "_tris": len(m[1]), tn + "_d2": crit[tn, b][0], tn + "_ncos": crit[tn, b][1]})
+
+
+def tree_rows(out, name, mesh, trees, cfg, extra):
+    """Emit one row per view (two random views, gaze at the centre, relit) and budget (3, 8, 20 %): each
+    tree's perceptual cut carrying region normals, judged, the first tree's drawn count for the others and
+    the peers; ``extra(tree name, tree, cut, mesh, budget)`` -> more fields of the row."""
+    for vi, d in enumerate(view_directions(2, 55, name)):
+        view = _view(mesh, d, 0.0, "relit", cfg, True)
+        J = judge_fn(mesh, view, "relit")
+        for b in (0.03, 0.08, 0.2):
+            t0 = time.perf_counter()
+            row = dict(mesh=name, view=vi, budget=b)
+            target = None
+            for tn, tree in trees.items():
+                n = max(int(b * tree.n_triangles), 1) if target is None else target
+                cut = optim.budget_cut(tree, optim.score(tree, view), n, monotone="trust")
+                m = optim.extract(tree, cut, "region")
+                target = target or len(m[1])
+                row[tn] = J(m)
+                row.update(extra(tn, tree, cut, m, b))
+            for peer in ("meshoptimizer", "fast_simplification"):
+                row[peer] = J(mesh.peer(peer, "relit", target))
+            row["s"] = round(time.perf_counter() - t0, 1)
+            emit(out, row)
 
 
 if __name__ == "__main__":
