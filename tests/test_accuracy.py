@@ -113,10 +113,12 @@ def test_bad_procedural_spec_is_one_error():
         A.load_meshes({"meshes": [], "procedural": ["cube:3"]})
 
 
-def test_bad_normals_in_config_is_one_line_error(tmp_path, capsys):
+@pytest.mark.parametrize("line, msg", [('normals = "smooth"', "normals must be one of region, faces"),
+                                       ('method = "kdtree"', "method must be one of qem, octree, meshopt, hybrid")])
+def test_bad_normals_or_method_in_config_is_one_line_error(tmp_path, capsys, line, msg):
     cfg = tmp_path / "c.toml"
-    cfg.write_text('normals = "smooth"\n')
-    with pytest.raises(A.PlodError, match="normals must be one of region, faces") as e:
+    cfg.write_text(line + "\n")
+    with pytest.raises(A.PlodError, match=msg) as e:
         A.main(["--config", str(cfg), "--quick", "--out", str(tmp_path / "out")])
     assert "\n" not in str(e.value) and not (tmp_path / "out").exists()
 
