@@ -1077,6 +1077,27 @@ def _leaves(hf, camera, R, criteria, split, culled):
     return TerrainLOD(split, drawn, fans, tri, L)
 
 
+def straddle_triangles(hf: Heightfield, camera: TerrainCamera, lod: TerrainLOD) -> int:
+    """Triangles of ``lod``'s drawn leaves whose bounding sphere is not wholly inside ``camera``'s field of
+    view (the leaves the view's boundary may cross).
+
+    The bound on monotonicity in the criteria: a refinement under more criteria splits a subset of the
+    squares (its split set is nested in the other's), and inside the view a finer refinement of a leaf
+    draws at least the leaf's triangles (a leaf keeps its fan or gains finer edges; four children draw
+    at least 8, a fan at most 8). Only a straddling leaf can lose: unsplit it is drawn, split its
+    children may all be culled. So adding a criterion adds at most this many triangles; with ``cull``
+    off, none (``reports/terrain/scripts/monotone.py`` measures how often and how much it adds)."""
+    R = camera.rotation()
+    tri = 0
+    for l, (rc, fan) in enumerate(zip(lod.drawn, lod.fans)):
+        if not len(rc):
+            continue
+        _, contained = _culled(hf, camera, R, l, rc[:, 0], rc[:, 1], inside=True)
+        k = fan[~contained].sum(1)
+        tri += int(np.where(k > 0, 4 + k, 2).sum())
+    return tri
+
+
 def terrain_mesh(hf: Heightfield, lod: TerrainLOD):
     """The drawn leaves as a triangle mesh: (vertices (V, 3) world, faces (F, 3), grid (V, 2) (row,
     column) sample indices). Faces wind counter-clockwise seen from above (+y)."""

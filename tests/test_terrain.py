@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal_heightfield, full_mesh,
-                            refine_terrain, terrain_mesh)
+                            refine_terrain, straddle_triangles, terrain_mesh)
 from pmetric import PlodError
 
 ALL = TerrainCriteria(xi=4.0)
@@ -104,6 +104,23 @@ def test_adding_a_criterion_never_adds_triangles():
             if not mask >> b & 1:
                 assert counts[mask | 1 << b] <= counts[mask], (mask, names[b])
     assert counts[15] < counts[9] < counts[0] == hf.full_triangles  # all < size + cull < none
+
+
+@pytest.mark.parametrize("seed", [3, 10, 29])
+def test_adding_a_criterion_adds_triangles_only_where_the_view_boundary_crosses(seed):
+    """On random scenes (reports/terrain/scripts/monotone.py's generator): the split sets are nested, and a
+    criterion adds triangles only with cull on both sides, at most the straddling leaves' triangles.
+    Seeds 10 and 29 are scenes where a criterion does add triangles; in 29 as many as the bound allows."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reports" / "terrain" / "scripts"))
+    from monotone import check, scene
+
+    pairs, worse = check(*scene(np.random.default_rng(seed)))
+    assert pairs == 32
+    assert all(mask >> 3 & 1 and 0 < added <= bound for mask, _, added, bound in worse)
+    assert bool(worse) == (seed in (10, 29))
 
 
 def test_culling_drops_everything_behind():
