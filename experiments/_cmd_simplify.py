@@ -322,6 +322,8 @@ def _check_view_flags(args) -> None:
 
     for flag, text in (("--eye", args.eye), ("--target", args.target), ("--up", args.up)):
         _vector(flag, text, 3)
+    if args.up is not None and not np.any(_vector("--up", args.up, 3)):
+        raise PlodError(f"--up must be a nonzero vector, got {args.up!r}")
     rest = argparse.Namespace(**{**vars(args), "eye": None, "target": None, "up": None})
     build_view(np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), rest)
 

@@ -304,7 +304,7 @@ def _digest(arrays) -> str:
     for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(memoryview(a).cast("B"))
+        h.update(a.reshape(-1).view(np.uint8))  # the raw bytes (memoryview.cast refuses a 0 in the shape)
     return h.hexdigest()
 
 

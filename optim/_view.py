@@ -115,6 +115,8 @@ class View(eqx.Module):
         self.eye = _vec3("eye", eye)
         self.target = _vec3("target", target)
         self.up = _vec3("up", up)
+        if not np.any(self.up):
+            raise PlodError("View: up must be a nonzero vector, got (0, 0, 0)")
         fwd = self.target - self.eye
         # relative to the positions' own magnitude, so a view of a tiny (1e-20 units) object is fine
         if np.linalg.norm(fwd) <= 1e-12 * max(np.linalg.norm(self.eye), np.linalg.norm(self.target)):
@@ -190,6 +192,8 @@ class View(eqx.Module):
         dist = radius / math.sin(math.radians(deg) / 2)
         eye = centre + d / np.linalg.norm(d) * dist
         up = _vec3("up", up)
+        if not np.any(up):  # only an up parallel to the direction is replaced below, not a missing one
+            raise PlodError("View.framing: up must be a nonzero vector, got (0, 0, 0)")
         if np.linalg.norm(np.cross(d, up)) < 1e-6 * np.linalg.norm(d) * max(np.linalg.norm(up), 1e-300):
             up = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 * np.linalg.norm(d) else np.array([0.0, 0.0, 1.0])
         return cls(eye=eye, target=centre, up=up, **kw)

@@ -162,6 +162,7 @@ def test_output_carries_the_chosen_normals(capsys, mesh_file, tmp_path):
         (["--budget", "10", "--cull-back-faces", "90"], "--cull-back-faces must be"),
         (["--budget", "10", "--cull-back-faces", "x"], "--cull-back-faces needs a number"),
         (["--budget", "10", "--normals", "smooth"], "--normals must be region, faces or none"),
+        (["--budget", "10", "--up", "0,0,0"], "--up must be a nonzero vector"),
     ],
 )
 def test_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
@@ -169,6 +170,19 @@ def test_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
     assert code == 2
     assert msg in err
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_one_triangle_relit_with_the_cache(capsys, tmp_path, cache):
+    """A mesh of one triangle (a tree without folds, empty context arrays) with --light: the first run
+    saves the tree and its context, the second reads both back; both keep the triangle. The context's
+    digest used to raise a TypeError here (a traceback, found by fuzzing the command line)."""
+    src = tmp_path / "tri.obj"
+    src.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for want in ("saved", "hit"):
+        code, stdout, err = _run(capsys, src, "--budget", 1, "--light", "0,0,1", "--json", "--out", tmp_path / "o.ply")
+        assert code == 0, err
+        res = json.loads(stdout)
+        assert res["output_triangles"] == 1 and res["context_cache"] == want
 
 
 def test_never_overwrites_the_input(capsys, mesh_file):

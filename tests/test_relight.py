@@ -462,3 +462,21 @@ def test_saved_context_gives_the_same_keys_and_rejects_what_it_cannot_trust(tmp_
     assert refused(tmp_path / "damaged.npz")
     monkeypatch.setattr(C, "_context_version", lambda: "other code")  # made by other code or numpy
     assert refused(path)
+
+
+def test_saved_context_of_a_one_triangle_mesh(tmp_path):
+    """A tree with no fold (one triangle) has empty context arrays (shape (0, ...)); saving them used to
+    raise a TypeError from the digest (memoryview.cast refuses a 0 in the shape): `plod simplify` with
+    --light crashed with a traceback on such a mesh. Now it saves, loads back and scores the same."""
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    f = np.array([[0, 1, 2]])
+    view = optim.View.framing(v, lighting=optim.Lighting())
+    a = optim.build_tree(v, f, method="hybrid")
+    want = optim.score(a, view)
+    arrays = [x for n in optim.CONTEXT_NAMES if a.has_derived(n) for x in a.derived(n, None)]
+    assert any(np.asarray(x).size == 0 and np.asarray(x).ndim > 1 for x in arrays)  # the case that failed
+    path = tmp_path / "ctx.npz"
+    assert optim.save_context(a, path)
+    b = optim.build_tree(v, f, method="hybrid")
+    assert optim.load_context(b, path)
+    np.testing.assert_array_equal(optim.score(b, view), want)

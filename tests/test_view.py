@@ -54,6 +54,9 @@ def test_framing_subtends_object_deg():
     assert v.target == pytest.approx(centre)
     # a direction parallel to the default up still gives a valid camera
     View.framing(pts, 30.0, direction=(0, 1, 0))
+    # but a zero up is an error, not silently replaced (`plod simplify --up 0,0,0` used to run)
+    with pytest.raises(ValueError, match="up must be a nonzero vector"):
+        View.framing(pts, 30.0, up=(0, 0, 0))
 
 
 def test_gaze_forms():
@@ -80,6 +83,7 @@ def test_previous_view_and_dt():
         (dict(eye=(1, 2)), "eye must be three numbers"),
         (dict(eye=(0, 0, 0)), "eye and target coincide"),
         (dict(eye=(0, 5, 0)), "up must not be parallel"),
+        (dict(eye=(0, 0, 5), up=(0, 0, 0)), "up must be a nonzero vector"),
         (dict(eye=(0, 0, 5), fov_deg=180), "fov_deg"),
         (dict(eye=(0, 0, 5), fov_deg=-1), "fov_deg"),
         (dict(eye=(0, 0, 5), gaze="left"), "gaze must be"),
