@@ -307,7 +307,7 @@ def _finish(arrs, labels, *, is_log, is_velocity, where, colname=None) -> dict:
     def fail(mask, k, msg):
         if mask.any():
             i = int(np.argmax(mask))
-            raise PlodError(f"{where(i)}, column {cn(k)!r}: {msg} (got {arrs[k][i]!r})")
+            raise PlodError(f"{where(i)}, column {cn(k)!r}: {msg} (got {arrs[k][i].item()!r})")
 
     # required, finite
     for k in ("f", "thr", "e", "tv"):
