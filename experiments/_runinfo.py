@@ -52,6 +52,9 @@ def _merge(defaults: Mapping[str, Any], overrides: Mapping[str, Any], where: str
                 raise PlodError(
                     f"config key {where + key!r} must be {type(d).__name__}, got {type(value).__name__} ({value!r})"
                 )
+            if key == "seed" and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+                # numpy's generators take 0 .. 2^128 - 1; every experiment's "seed" seeds one of them
+                raise PlodError(f"config key {where + key!r} must be an integer >= 0, got {value!r}")
             out[key] = float(value) if isinstance(d, float) else value
     return out
 

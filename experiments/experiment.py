@@ -210,8 +210,8 @@ def check_config(cfg: dict, where: Callable[[str], str] = repr) -> dict:
         bad("tree_method", "'meshopt', 'qem' or 'octree'")
     if not isinstance(cfg["views"], int) or cfg["views"] < 1:
         bad("views", "an integer >= 1")
-    if not isinstance(cfg["seed"], int):
-        bad("seed", "an integer")
+    if not isinstance(cfg["seed"], int) or isinstance(cfg["seed"], bool) or cfg["seed"] < 0:
+        bad("seed", "an integer >= 0")
     if not 0 < cfg["object_deg"] < 180:
         bad("object_deg", "an angle in (0, 180) deg")
     g = cfg["gaze_offsets_deg"]

@@ -66,6 +66,7 @@ def test_unknown_key_names_the_key_and_its_line(tmp_path):
     ('methods = ["model:nosuchcsf"]\n', "methods", 1),
     ('judges = ["fovvdp", "psnr"]\n', "judges", 1),
     ('seed = 1\nviews = "two"\n', "views", 2),
+    ('views = 1\nseed = -1\n', "seed", 2),
     ('procedural = ["cube:3"]\n', "procedural", 1),
     ('meshes = ["no/such/mesh.ply"]\n', "meshes", None),
 ])

@@ -45,6 +45,9 @@ def test_config_overrides_and_rejects_unknown(tmp_path):
     cfg.write_text('seed = "zero"\n')
     with pytest.raises(ValueError, match="'seed' must be int"):
         load_config(cfg, DEFAULTS)
+    cfg.write_text("seed = -1\n")  # numpy's "expected non-negative integer" reached the user before
+    with pytest.raises(ValueError, match="'seed' must be an integer >= 0, got -1"):
+        load_config(cfg, DEFAULTS)
     cfg.write_text("seed = = 3\n")
     with pytest.raises(ValueError, match="malformed TOML"):
         load_config(cfg, DEFAULTS)
