@@ -77,6 +77,9 @@ _PAD = 1024
 
 
 # ----------------------------------------------------------------------------------------------- input
+_MAX_COORD = 1e150  # object units: beyond this, squared distances overflow float64
+
+
 def _check_points(points, normals, colors, name: str = "build_points"):
     """(points (P, 3) float64, unit normals (P, 3) float64, colours (P, 3) float64 sRGB or None)."""
     try:
@@ -90,6 +93,10 @@ def _check_points(points, normals, colors, name: str = "build_points"):
     if not np.isfinite(p).all():
         raise PlodError(f"{name}: points contain NaN or infinite coordinates "
                         f"(first at point {int(np.flatnonzero(~np.isfinite(p).all(1))[0])})")
+    big = float(np.abs(p).max())
+    if big > _MAX_COORD:  # squared distances (the k-d tree's, the spheres') would overflow float64
+        raise PlodError(f"{name}: coordinates up to {big:g} exceed {_MAX_COORD:g}; scale the points (a power of "
+                        "two keeps them exact)")
     try:
         n = np.asarray(normals, dtype=np.float64)
     except (TypeError, ValueError):

@@ -46,11 +46,14 @@ class Heightfield:
     level ``l`` (0..L) the nested maximum vertical error (m) of each square against its two triangles
     (diagonal from corner (0, 0) to (1, 1)), and its minimum and maximum height (m) for culling.
     Raises :class:`PlodError` for an empty grid, a grid that is not square ``2^n + 1``, non-finite
-    heights or a non-positive spacing.
+    heights, a non-positive spacing, or heights or an extent beyond ``1e12`` m.
     """
 
     def __init__(self, heights, spacing: float = 1.0):
-        h = np.asarray(heights, dtype=np.float64)
+        try:
+            h = np.asarray(heights, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise PlodError("terrain: the heights must be numbers (an (N, N) array)") from None
         if h.size == 0:
             raise PlodError("terrain: the heightfield is empty")
         if h.ndim != 2 or h.shape[0] != h.shape[1]:
@@ -66,6 +69,9 @@ class Heightfield:
         sp = float(spacing)
         if not (math.isfinite(sp) and sp > 0):
             raise PlodError(f"terrain: spacing must be a positive number of metres, got {spacing!r}")
+        if np.abs(h).max() > _MAX_COORD or sp * (n - 1) > _MAX_COORD:
+            raise PlodError(f"terrain: heights and the grid's extent must stay within {_MAX_COORD:g} m, got heights "
+                            f"up to {np.abs(h).max():g} m and an extent of {sp * (n - 1):g} m")
         self.heights, self.spacing, self.n, self.levels = h, sp, n, L
         self.err, self.zmin, self.zmax = _pyramid(h, L)
 
@@ -154,19 +160,51 @@ def fractal_heightfield(n: int, *, seed: int = 0, beta: float = 2.2, relief: flo
 
 
 # ----------------------------------------------------------------------------------------------- camera
+_MAX_COORD = 1e12  # m: heights, grid extent and eye coordinates beyond this would overflow the squares
+
+
+def _finite_numbers(name: str, x, n: int) -> np.ndarray:
+    """``x`` as n float64 finite numbers, or PlodError naming ``name``."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PlodError(f"terrain: {name} must be {n} numbers, got {x!r}") from None
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise PlodError(f"terrain: {name} must be {n} finite numbers, got {a.tolist()}")
+    return a
+
+
 @dataclass(frozen=True)
 class TerrainCamera:
     """An eye at ``eye`` (3,) looking along ``forward`` (3,) with ``up`` (3,) (world units, y up).
 
     ``fov_deg`` (horizontal, vertical) is the angular field of view (deg; may exceed 180 horizontally: the
     test is on azimuth and elevation, not a perspective frustum); ``gaze_deg`` (azimuth, elevation) of
-    the gaze from the forward direction (deg; right and up positive)."""
+    the gaze from the forward direction (deg; right and up positive).
+
+    Raises :class:`PlodError` for non-finite or wrongly shaped vectors, a zero ``forward`` or ``up``,
+    coordinates beyond ``1e12`` m, a field of view outside (0, 360] x (0, 180] deg or a gaze outside
+    [-180, 180] x [-90, 90] deg."""
 
     eye: np.ndarray
     forward: np.ndarray
     up: tuple = (0.0, 1.0, 0.0)
     fov_deg: tuple[float, float] = (200.0, 135.0)
     gaze_deg: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self):
+        for name in ("eye", "forward", "up"):
+            v = _finite_numbers(f"TerrainCamera.{name}", getattr(self, name), 3)
+            if name != "eye" and not np.any(v):
+                raise PlodError(f"terrain: TerrainCamera.{name} must be a nonzero vector")
+            if name == "eye" and np.abs(v).max() > _MAX_COORD:
+                raise PlodError(f"terrain: TerrainCamera.eye must lie within {_MAX_COORD:g} m of 0, got {v.tolist()}")
+        fx, fy = _finite_numbers("TerrainCamera.fov_deg", self.fov_deg, 2).tolist()
+        if not (0 < fx <= 360 and 0 < fy <= 180):
+            raise PlodError(f"terrain: TerrainCamera.fov_deg must be in (0, 360] x (0, 180] deg, got {[fx, fy]}")
+        az, el = _finite_numbers("TerrainCamera.gaze_deg", self.gaze_deg, 2).tolist()
+        if not (abs(az) <= 180 and abs(el) <= 90):
+            raise PlodError(f"terrain: TerrainCamera.gaze_deg must be in [-180, 180] x [-90, 90] deg, got {[az, el]}")
 
     def rotation(self) -> np.ndarray:
         """(3, 3) world -> camera rows (right, up, back)."""
@@ -205,6 +243,20 @@ class TerrainCriteria:
     xi: float | None = None
     velocity_deg_s: float | None = None
     tol: float = 0.0
+
+    def __post_init__(self):
+        for name in ("size", "periphery", "velocity", "cull"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise PlodError(f"terrain: TerrainCriteria.{name} must be True or False, got {getattr(self, name)!r}")
+        for name, lo, strict in (("xi", 0.0, True), ("velocity_deg_s", 0.0, False), ("tol", 0.0, False)):
+            x = getattr(self, name)
+            if x is None and name != "tol":
+                continue
+            ok = isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and \
+                math.isfinite(float(x)) and (float(x) > lo if strict else float(x) >= lo)
+            if not ok:
+                raise PlodError(f"terrain: TerrainCriteria.{name} must be a finite number {'>' if strict else '>='} "
+                                f"{lo:g}{' or None' if name != 'tol' else ''}, got {x!r}")
 
 
 @dataclass
@@ -967,6 +1019,9 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     L = hf.levels
     if not (dt_s > 0):
         raise PlodError(f"terrain: dt_s must be a positive time step in seconds, got {dt_s!r}")
+    for k, c in enumerate(previous):
+        if not isinstance(c, TerrainCamera):
+            raise PlodError(f"terrain: previous[{k}] must be a TerrainCamera, got {type(c).__name__}")
     R = camera.rotation()
     moves = [(np.asarray(c.eye, float), c.rotation()) for c in previous]
     g = camera.gaze()

@@ -276,6 +276,7 @@ def test_load_points_from_mesh(tmp_path):
     ("zero_normal", "normal\\(s\\) are zero"),
     ("colors_shape", "colors must have shape"),
     ("leaf_k", "leaf_k must be a positive integer"),
+    ("huge", r"coordinates up to 1e\+200 exceed 1e\+150"),  # was scipy's "data must be finite" (they were)
 ])
 def test_bad_input_one_line(case, match):
     p = np.random.default_rng(0).random((5, 3))
@@ -293,6 +294,8 @@ def test_bad_input_one_line(case, match):
         kw["colors"] = np.zeros((4, 3))
     elif case == "leaf_k":
         kw["leaf_k"] = 0
+    elif case == "huge":
+        p[1, 0] = 1e200
     with pytest.raises(pm.PlodError, match=match) as exc:
         build_points(p, n, **kw)
     assert "\n" not in str(exc.value)

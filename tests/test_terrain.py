@@ -146,11 +146,40 @@ def test_velocity_and_eccentricity_lower_the_count():
     (np.zeros((10, 10)), "2^n + 1"),
     (np.zeros((9, 17)), "square"),
     (np.where(np.eye(9) > 0, np.nan, 0.0), "non-finite"),
+    (np.full((9, 9), 1e300), "within 1e"),
+    ([["a"] * 3] * 3, "must be numbers"),
 ])
 def test_bad_heightfields(z, msg):
     with pytest.raises(PlodError, match=msg.replace("^", r"\^").replace("+", r"\+")) as err:
         Heightfield(z, 1.0)
     assert "\n" not in str(err.value)
+
+
+_EYE, _FWD = np.array([16.0, 20.0, -5.0]), np.array([0.0, -0.3, 1.0])
+
+
+@pytest.mark.parametrize("make, msg", [
+    # each used to return a silently wrong frame (2 or 0 triangles, or the whole grid) or a raw traceback
+    (lambda: TerrainCamera(np.array([np.nan, 1.0, 1.0]), _FWD), r"eye must be 3 finite numbers, got \[nan"),
+    (lambda: TerrainCamera(_EYE, np.zeros(3)), "forward must be a nonzero vector"),
+    (lambda: TerrainCamera(_EYE, _FWD, up=(0.0, 0.0, 0.0)), "up must be a nonzero vector"),
+    (lambda: TerrainCamera(np.array([1e13, 0.0, 0.0]), _FWD), "eye must lie within"),
+    (lambda: TerrainCamera(_EYE, _FWD, fov_deg=(0.0, 30.0)), r"fov_deg must be in \(0, 360\]"),
+    (lambda: TerrainCamera(_EYE, _FWD, fov_deg=(400.0, 30.0)), r"fov_deg must be in \(0, 360\]"),
+    (lambda: TerrainCamera(_EYE, _FWD, fov_deg=(float("nan"), 30.0)), "fov_deg must be 2 finite numbers"),
+    (lambda: TerrainCamera(_EYE, _FWD, gaze_deg=(0.0, 120.0)), r"gaze_deg must be in \[-180, 180\]"),
+    (lambda: TerrainCriteria(xi=0.0), "xi must be a finite number > 0"),
+    (lambda: TerrainCriteria(velocity_deg_s=-5.0), "velocity_deg_s must be a finite number >= 0"),
+    (lambda: TerrainCriteria(velocity_deg_s=float("nan")), "velocity_deg_s must be a finite number >= 0"),
+    (lambda: TerrainCriteria(tol=float("nan")), "tol must be a finite number >= 0"),
+    (lambda: TerrainCriteria(cull="yes"), "cull must be True or False"),
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), previous=(1,)),
+     r"previous\[0\] must be a TerrainCamera"),
+])
+def test_bad_cameras_and_criteria(make, msg):
+    with pytest.raises(PlodError, match=msg) as err:
+        make()
+    assert "\n" not in str(err.value) and "np.float64" not in str(err.value)
 
 
 # ---------------------------------------------------------------------------------- slow reference
