@@ -367,7 +367,11 @@ class CSFModel(eqx.Module):
         times the distance the change has frequency ``k / (2 theta)`` cycles/deg, eccentricity ``e / k``
         and velocity ``v / k``. Returns the smallest ``k >= 0`` such that the change is imperceptible
         at every ``k' > k``; at ``k`` itself it is perceptible (within 1e-4 relative) unless k = 0.
-        ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0.
+        ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0. Values are finite for
+        every ``theta >= 0``; on the generic path below, gradients are finite for ``theta = 0`` and ``theta``
+        above the square root of the smallest normal float (1.1e-19 deg in float32, 1.5e-154 in float64):
+        below it ``theta^2`` underflows in the implicit derivative (measured; far below any change a
+        display can show, so not guarded).
 
         Generic hook (:meth:`_imperceptible_distance`). A model whose ``inputs`` include neither
         ``"e"`` nor ``"v"`` is perceptible at ``k`` iff ``k / (2 theta) <= threshold_frequency(c)``, so

@@ -123,6 +123,16 @@ class Eccentric(CSFModel):
         if "v" in type(self.csf).inputs:
             return CSFModel._imperceptible_distance(self, c, theta, e, v)
         F = 2.0 * theta * self.csf._threshold_frequency(c, jnp.zeros_like(e), v)
+        # phi(k) = F is homogeneous of degree 1 in (k, F, e): solve it for (F, e) scaled by a power of two
+        # near 1 / max(F, e) (exact) and scale k back, so that no cube or square of a tiny theta's k
+        # underflows (k^3 of a 1e-15 deg change is below float32's range: 0 / 0 in the cubic's ratio)
+        dt = jnp.result_type(F, e)
+        _, n = jnp.frexp(lax.stop_gradient(jnp.maximum(F, e)).astype(dt))
+        scale = lambda x, m: jnp.ldexp(x.astype(dt), m).astype(dt)  # noqa: E731  (ldexp may promote under x64)
+        return scale(self._cubic_distance(scale(F, -n), scale(e, -n)), n)
+
+    def _cubic_distance(self, F, e):
+        """The largest k with k + k1 e + k3 e^3 / k^2 <= F (0 where there is none); F and e of order 1."""
         k1, k3 = self.magnification.k1, self.magnification.k3
         ku = F - k1 * e
         if self.magnification.form == "linear":

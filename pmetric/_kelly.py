@@ -69,7 +69,11 @@ class KellyAbstract(CSFModel):
     def _sensitivity(self, f, e, v):
         """S = delta alpha^2 exp(-alpha), alpha = 2 (1 + 0.29 e) f / f0 (no log: exact to rounding)."""
         a = self._alpha(f, e)
-        out = self.delta * a * a * jnp.exp(-a)
+        # alpha^2 e^-alpha is 0 in float64 beyond alpha = 1e3 (and in float32 long before); there alpha^2
+        # itself overflows float32 from 1.8e19 and inf * 0 is NaN: 0 there, alpha clamped (double where)
+        small = a < 1e3
+        a = jnp.where(small, a, 1e3)
+        out = jnp.where(small, self.delta * a * a * jnp.exp(-a), 0.0)
         return jnp.broadcast_to(out, jnp.broadcast_shapes(out.shape, jnp.shape(v)))
 
     def _peak_frequency(self, e, v):

@@ -127,6 +127,34 @@ def test_finite_values_and_gradients_on_dense_grid(name, dtype):
         assert not np.asarray(p)[..., 0].any()  # zero contrast is never visible
 
 
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_domain_edges_found_by_fuzzing(dtype):
+    """Two failures a sweep of extreme inputs found (each fails on the code before the fix):
+    KellyAbstract's sensitivity was NaN from f = 1.8e19 cycles/deg in float32 (alpha^2 overflowed against
+    exp(-alpha) = 0) although its documented domain runs to 1e30; Eccentric's closed-form distance was
+    NaN for a change under 1e-15 deg in float32 (its cubic's ku^3 underflowed: 0 / 0); the float32 case fails on
+    the code before the fix. Now both are finite
+    with finite gradients, and a foveal change's distance is the closed form k = 2 theta f*(c)."""
+    with jax.enable_x64(dtype == "float64"):
+        dt = jnp.dtype(dtype)
+        f = jnp.asarray(np.concatenate([[0.0], np.geomspace(1e-30, 1e30, 61)]), dt)
+        for model in (pm.KellyAbstract(), pm.ManosSakrison()):
+            s = model.sensitivity(f, jnp.asarray(30.0, dt))
+            g = jax.vmap(jax.grad(lambda x: model.sensitivity(x, jnp.asarray(30.0, dt))))(f)
+            assert np.isfinite(np.asarray(s)).all() and np.isfinite(np.asarray(g)).all(), type(model).__name__
+        ecc = pm.Eccentric(pm.ManosSakrison())
+        th = jnp.asarray(np.geomspace(1e-37, 10.0, 39), dt)
+        c = jnp.asarray(0.01, dt)
+        for e in (0.0, 1e-20, 0.3, 10.0):
+            e = jnp.asarray(e, dt)
+            k = np.asarray(ecc.imperceptible_distance(c, th, e))
+            dk = jax.vmap(jax.grad(ecc.imperceptible_distance, (1, 2)), (None, 0, None))(c, th, e)
+            assert np.isfinite(k).all() and all(np.isfinite(np.asarray(x)).all() for x in dk)
+        fstar = float(ecc.threshold_frequency(c, 0.0))
+        k0 = np.asarray(ecc.imperceptible_distance(c, th, jnp.asarray(0.0, dt)))
+        np.testing.assert_allclose(k0, 2.0 * np.asarray(th, np.float64) * fstar, rtol=1e-5)
+
+
 @pytest.mark.parametrize("name", list(FACTORIES))
 def test_jit_vmap_match_eager(name, x64):
     model = FACTORIES[name]()
