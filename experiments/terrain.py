@@ -34,6 +34,70 @@ SEED_TABLE = [((0, 0, 0, 0), 100.0), ((0, 0, 0, 1), 40.3), ((1, 0, 0, 1), 5.4), 
               ((1, 0, 1, 1), 5.4), ((1, 1, 1, 1), 0.8)]
 
 
+def _grid_size(n) -> bool:
+    return isinstance(n, int) and not isinstance(n, bool) and n >= 3 and (n - 1) & (n - 2) == 0
+
+
+def _numbers(x, n=None, lo=None, strict=False, ints=False, empty=False) -> bool:
+    """``x`` is a list (of ``n`` items when given; non-empty unless ``empty``) of finite numbers (ints when
+    ``ints``) at least ``lo`` (more than ``lo`` when ``strict``)."""
+    if not isinstance(x, (list, tuple)) or (n is not None and len(x) != n) or (not x and not empty):
+        return False
+    kinds = (int,) if ints else (int, float)
+    return all(isinstance(v, kinds) and not isinstance(v, bool) and math.isfinite(v) and
+               (lo is None or (v > lo if strict else v >= lo)) for v in x)
+
+
+def check_config(cfg: dict, who: str = "terrain") -> dict:
+    """``cfg`` itself when every value the terrain experiments read is in range; PlodError naming the key
+    otherwise (the loader checks only names and types)."""
+    def bad(key, want):
+        raise PlodError(f"{who}: config key {key!r} must be {want}, got {cfg[key]!r}")
+
+    checks = {
+        "fractal_size": (lambda x: _grid_size(x), "2^n + 1 samples (3, 5, 9, ..., 1025)"),
+        "fractal_spacing_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
+        "fractal_relief_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
+        "resolution": (lambda x: _numbers(x, 2, lo=1, ints=True), "two pixel counts >= 1 (across, down)"),
+        "judge_px_per_deg": (lambda x: _numbers([x], lo=0), "a finite number >= 0 (0: twice xi)"),
+        "frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "fig4_frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "fig4_velocities": (lambda x: _numbers(x, lo=0), "a non-empty list of velocities >= 0 deg/s"),
+        "fig4_fovs": (lambda x: _numbers(x, lo=0, strict=True) and max(x) <= 180,
+                      "a non-empty list of square fields of view in (0, 180] deg"),
+        "pixel_errors": (lambda x: _numbers(x, lo=0, strict=True), "a non-empty list of pixel errors > 0"),
+        "scale_size": (lambda x: x == 0 or _grid_size(x), "0 (no scale test) or 2^n + 1 samples"),
+        "scale_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "judge_frames": (lambda x: _numbers(x, lo=3, ints=True, empty=True), "a list of flight frames >= 3"),
+        "clip_starts": (lambda x: _numbers(x, lo=3, ints=True), "a non-empty list of flight frames >= 3"),
+        "clip_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "controls_px": (lambda x: _numbers(x, lo=0, strict=True, empty=True), "a list of pixel errors > 0"),
+    }
+    for key, (ok, want) in checks.items():
+        if key in cfg and not ok(cfg[key]):
+            bad(key, want)
+    return cfg
+
+
+def check_flight(fl: dict, path) -> dict:
+    """``fl`` itself when the flight's values are usable; PlodError naming the key and file otherwise."""
+    def bad(key, want):
+        raise PlodError(f"terrain flight {str(path)!r}: {key!r} must be {want}, got {fl[key]!r}")
+
+    for key in ("duration_s", "fps", "yaw_period_s"):
+        if not _numbers([fl[key]], lo=0, strict=True):
+            bad(key, "a finite number > 0")
+    for key in ("orbit_frac", "orbit_turns", "altitude_m", "yaw_amp_deg"):
+        if not _numbers([fl[key]]):
+            bad(key, "a finite number")
+    if not _numbers([fl["pitch_deg"]]) or abs(fl["pitch_deg"]) >= 90:
+        bad("pitch_deg", "an angle in (-90, 90) deg")
+    f = fl["fov_deg"]
+    if not _numbers(f, 2, lo=0, strict=True) or f[0] > 360 or f[1] > 180:
+        bad("fov_deg", "two angles in (0, 360] x (0, 180] deg")
+    return fl
+
+
 def flight_cameras(hf: Heightfield, fl: dict, fov=None) -> list[TerrainCamera]:
     """The cameras of the generated flight (one per frame, 1 / fps s apart)."""
     n = int(round(fl["duration_s"] * fl["fps"])) + 1
@@ -97,7 +161,8 @@ def run_config(path, out=None, progress=None) -> Path:
     cfg = load_config(path, DEFAULTS)
     if cfg["kind"] != "terrain":
         raise PlodError(f"terrain: config kind must be 'terrain', got {cfg['kind']!r}")
-    fl = load_config(repo_path(cfg["flight"]), FLIGHT)
+    check_config(cfg)
+    fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
     out = Path(out or repo_path(cfg["out"]))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])

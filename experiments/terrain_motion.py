@@ -29,8 +29,8 @@ import numpy as np
 
 from experiments._runinfo import load_config, repo_path, run_script, save_run_info
 from experiments.terrain import DEFAULTS as TERRAIN_DEFAULTS
-from experiments.terrain import (FLIGHT, config_main, flight_cameras, load_terrains, mean_angular_velocity, named_criteria,
-                                 terrain_view)
+from experiments.terrain import (FLIGHT, check_config, check_flight, config_main, flight_cameras, load_terrains,
+                                 mean_angular_velocity, named_criteria, terrain_view)
 from optim._terrain import TerrainCriteria, refine_terrain
 from pmetric import PlodError, atomic_write_text
 
@@ -114,13 +114,12 @@ def run_config(path, out=None, progress=None) -> Path:
     cfg = load_config(path, DEFAULTS)
     if cfg["kind"] != "terrain_motion":
         raise PlodError(f"terrain_motion: config kind must be 'terrain_motion', got {cfg['kind']!r}")
-    if not cfg["clip_starts"] or int(cfg["clip_frames"]) < 1:
-        raise PlodError("terrain_motion: clip_starts must name at least one frame and clip_frames be >= 1")
+    check_config(cfg, "terrain_motion")
     try:
         import pyfvvdp  # noqa: F401
     except ImportError:
         raise PlodError("terrain_motion: the judge extra is missing (pip install -e '.[judge]')") from None
-    fl = load_config(repo_path(cfg["flight"]), FLIGHT)
+    fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
     out = Path(out or repo_path(cfg["out"]))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])

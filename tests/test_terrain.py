@@ -390,3 +390,28 @@ def test_bound_pass_error_budget():
         G = np.clip(gint - gsl * np.log(np.maximum(v32, 1e-300)), gmin, gmax)
         H = np.minimum(xi32, G * np.minimum(1.0, ms / (1 + mr * e32) ** 2))
         assert np.max(np.abs(T._acuity(xi, e, v) / H - 1)) < T._MU / 10
+
+
+@pytest.mark.parametrize("line, msg", [
+    # each ran (a negative relief, one resolution number), or failed with a message naming no key
+    # ("range() arg 3 must not be zero", a ZeroDivisionError traceback for pixel_errors = [0])
+    ("fractal_size = 1000", "'fractal_size' must be 2^n + 1"),
+    ("fractal_relief_m = -5.0", "'fractal_relief_m' must be a finite number of metres > 0"),
+    ("resolution = [1280]", "'resolution' must be two pixel counts"),
+    ("frame_step = 0", "'frame_step' must be an integer >= 1"),
+    ("pixel_errors = [0]", "'pixel_errors' must be a non-empty list of pixel errors > 0"),
+    ("fig4_fovs = [400.0]", "'fig4_fovs' must be a non-empty list of square fields of view"),
+    ("fig4_velocities = [-10.0]", "'fig4_velocities' must be a non-empty list of velocities >= 0"),
+    ("judge_frames = [1]", "'judge_frames' must be a list of flight frames >= 3"),
+    ('flight = "FLIGHT"', "'fov_deg' must be two angles"),
+])
+def test_terrain_config_values_are_checked_before_work(tmp_path, line, msg):
+    from experiments.terrain import run_config
+
+    (tmp_path / "flight.toml").write_text("fov_deg = [200.0, 0.0]\n")
+    cfg = tmp_path / "t.toml"
+    size = "" if line.startswith("fractal_size") else "fractal_size = 33\n"
+    cfg.write_text('kind = "terrain"\n' + size + line.replace("FLIGHT", str(tmp_path / "flight.toml")) + "\n")
+    with pytest.raises(PlodError, match=msg.replace("^", r"\^").replace("+", r"\+").replace("[", r"\[")) as err:
+        run_config(cfg, out=tmp_path / "out")
+    assert "\n" not in str(err.value) and not (tmp_path / "out").exists()
