@@ -106,15 +106,22 @@ def test_adding_a_criterion_never_adds_triangles():
     assert counts[15] < counts[9] < counts[0] == hf.full_triangles  # all < size + cull < none
 
 
+def _scripts_on_path():
+    """reports/terrain/scripts on sys.path (monotone.py's scene generator and checks)."""
+    import sys
+    from pathlib import Path
+
+    p = str(Path(__file__).resolve().parents[1] / "reports" / "terrain" / "scripts")
+    if p not in sys.path:
+        sys.path.insert(0, p)
+
+
 @pytest.mark.parametrize("seed", [3, 10, 29])
 def test_adding_a_criterion_adds_triangles_only_where_the_view_boundary_crosses(seed):
     """On random scenes (reports/terrain/scripts/monotone.py's generator): the split sets are nested, and a
     criterion adds triangles only with cull on both sides, at most the straddling leaves' triangles.
     Seeds 10 and 29 are scenes where a criterion does add triangles; in 29 as many as the bound allows."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "reports" / "terrain" / "scripts"))
+    _scripts_on_path()
     from monotone import check, scene
 
     pairs, worse = check(*scene(np.random.default_rng(seed)))
@@ -415,3 +422,27 @@ def test_terrain_config_values_are_checked_before_work(tmp_path, line, msg):
     with pytest.raises(PlodError, match=msg.replace("^", r"\^").replace("+", r"\+").replace("[", r"\[")) as err:
         run_config(cfg, out=tmp_path / "out")
     assert "\n" not in str(err.value) and not (tmp_path / "out").exists()
+
+
+def test_random_valid_scenes_are_crack_free_and_bounded():
+    """hypothesis over the cameras and criteria monotone.py draws (grids 33, 65), cull off: the drawn mesh
+    tiles the grid with no crack, its triangles are counted right, and adding the cull criterion never adds
+    triangles (the case the straddling bound allows none); with cull on, the counts agree too."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    _scripts_on_path()
+    from monotone import scene
+
+    @settings(max_examples=20, deadline=None, derandomize=True)
+    @given(seed=st.integers(0, 2**31 - 1), size=st.booleans(), periphery=st.booleans(), velocity=st.booleans())
+    def check(seed, size, periphery, velocity):
+        hf, cam, prev, xi = scene(np.random.default_rng(seed), sizes=(33, 65))
+        crit = dict(size=size, periphery=periphery, velocity=velocity, xi=xi)
+        lod = refine_terrain(hf, cam, TerrainCriteria(cull=False, **crit), prev)
+        _check_crack_free(hf, lod)
+        culled = refine_terrain(hf, cam, TerrainCriteria(cull=True, **crit), prev)
+        assert culled.triangles <= lod.triangles
+        assert len(terrain_mesh(hf, culled)[1]) == culled.triangles
+
+    check()

@@ -26,8 +26,8 @@ from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal
 NAMES = ("size", "periphery", "velocity", "cull")
 
 
-def scene(rng):
-    n = int(rng.choice([33, 65, 129]))
+def scene(rng, sizes=(33, 65, 129)):
+    n = int(rng.choice(sizes))
     sp = float(rng.uniform(1.0, 10.0))
     hf = Heightfield(fractal_heightfield(n, seed=int(rng.integers(1 << 30)), relief=float(rng.uniform(5, 80)) * sp),
                      sp)
