@@ -321,9 +321,9 @@ def _check_view_flags(args) -> None:
     import argparse
 
     for flag, text in (("--eye", args.eye), ("--target", args.target), ("--up", args.up)):
-        _vector(flag, text, 3)
-    if args.up is not None and not np.any(_vector("--up", args.up, 3)):
-        raise PlodError(f"--up must be a nonzero vector, got {args.up!r}")
+        v = _vector(flag, text, 3)
+        if flag == "--up" and v is not None and not np.any(v):
+            raise PlodError(f"--up must be a nonzero vector, got {text!r}")
     rest = argparse.Namespace(**{**vars(args), "eye": None, "target": None, "up": None})
     build_view(np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), rest)
 

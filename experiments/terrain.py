@@ -55,7 +55,7 @@ def check_config(cfg: dict, who: str = "terrain") -> dict:
         raise PlodError(f"{who}: config key {key!r} must be {want}, got {cfg[key]!r}")
 
     checks = {
-        "fractal_size": (lambda x: _grid_size(x), "2^n + 1 samples (3, 5, 9, ..., 1025)"),
+        "fractal_size": (_grid_size, "2^n + 1 samples (3, 5, 9, ..., 1025)"),
         "fractal_spacing_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
         "fractal_relief_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
         "resolution": (lambda x: _numbers(x, 2, lo=1, ints=True), "two pixel counts >= 1 (across, down)"),

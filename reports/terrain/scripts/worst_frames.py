@@ -13,18 +13,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
-from experiments.terrain import FLIGHT, flight_cameras, load_config, repo_path  # noqa: E402
-from optim._terrain import Heightfield, TerrainCriteria, fractal_heightfield, refine_terrain  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _flight import table1_flight  # noqa: E402
+from optim._terrain import TerrainCriteria, refine_terrain  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--step", type=int, default=10)
 ap.add_argument("--top", type=int, default=8)
 a = ap.parse_args()
-hf = Heightfield(fractal_heightfield(1025, seed=0, relief=600.0), 10.0)
-fl = load_config(repo_path("configs/terrain_flight.toml"), FLIGHT)
-cams = flight_cameras(hf, fl)
-xi = 1280 / (2.0 * fl["fov_deg"][0])
-dt = 1.0 / fl["fps"]
+hf, cams, xi, dt, fl = table1_flight()
 crit = TerrainCriteria(xi=xi)
 refine_terrain(hf, cams[3], crit, (cams[2], cams[1], cams[0]), dt_s=dt)  # warm-up: compiles H'(v, e)
 
