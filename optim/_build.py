@@ -152,13 +152,18 @@ def build_tree(vertices, faces, colors=None, method: str = "meshopt", lighting=N
         :class:`VertexTree` over the *validated* mesh (see :func:`optim.validate_mesh`;
         ``tree.mesh_report`` lists what was dropped).
     """
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise PlodError(f"build_tree: method must be one of {METHODS}, got {method!r}")
+    agg = qem_aggressiveness
+    if (not isinstance(agg, (int, float, np.integer, np.floating)) or isinstance(agg, (bool, np.bool_))
+            or not np.isfinite(agg) or agg <= 0):
+        raise PlodError(f"build_tree: qem_aggressiveness must be a finite number > 0 (fast-simplification's agg), "
+                        f"got {agg!r}")
     if qem_diagonal is not None:
         ok = isinstance(qem_diagonal, (int, float, np.integer, np.floating)) and not isinstance(qem_diagonal, bool)
         if not ok or not np.isfinite(qem_diagonal) or qem_diagonal <= 0:
             raise PlodError(f"build_tree: qem_diagonal must be None or a finite number > 0, got {qem_diagonal!r}")
-    if proxy not in PROXIES:
+    if not isinstance(proxy, str) or proxy not in PROXIES:
         raise PlodError(f"build_tree: proxy must be one of {PROXIES}, got {proxy!r}")
     if progress is not None and not callable(progress):
         raise PlodError(f"build_tree: progress must be None or a callable (stage, done, total), got {progress!r}")

@@ -64,8 +64,9 @@ def _prepare_keys(tree, keys, monotone: str, who: str):
     float32 keys stay float32 (the selection then works on 32-bit codes); anything else becomes
     float64. Only internal nodes' keys matter (leaves are never unfolded) and only they are checked.
     """
-    if monotone not in _MONOTONE:
+    if not isinstance(monotone, str) or monotone not in _MONOTONE:
         raise PlodError(f"{who}: monotone must be one of {_MONOTONE}, got {monotone!r}")
+    _check_tree(tree, who)
     k = np.asarray(keys)
     N = tree.n_nodes
     if k.shape != (N,):
@@ -97,6 +98,11 @@ def _prepare_keys(tree, keys, monotone: str, who: str):
     )
 
 
+def _check_tree(tree, who: str):
+    if not hasattr(tree, "n_nodes") or not hasattr(tree, "internal"):
+        raise PlodError(f"{who}: tree must be an optim.VertexTree, got {type(tree).__name__}")
+
+
 def _internal_parent_pos(tree) -> np.ndarray:
     """(M - 1,) position in ``tree.internal`` of the parent of each non-root internal node (cached)."""
     def build():
@@ -113,7 +119,16 @@ def repair_monotone(tree, keys) -> np.ndarray:
 
     Returns a new float64 (N,) array; parent >= child holds afterwards.
     """
-    return tree.levels.reduce_up(np.array(keys, dtype=np.float64), np.maximum, include_self=True)
+    _check_tree(tree, "repair_monotone")
+    try:
+        k = np.array(keys, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PlodError("repair_monotone: keys must be real numbers, one per tree node") from None
+    if k.shape != (tree.n_nodes,):
+        raise PlodError(f"repair_monotone: keys must have shape ({tree.n_nodes},) (one per tree node), got {k.shape}")
+    if np.isnan(k).any():  # a NaN would spread to every ancestor
+        raise PlodError(f"repair_monotone: keys contain NaN (node {int(np.flatnonzero(np.isnan(k))[0])})")
+    return tree.levels.reduce_up(k, np.maximum, include_self=True)
 
 
 def _desc_rank_bits(k: np.ndarray) -> np.ndarray:
@@ -144,8 +159,9 @@ def budget_cut(tree, keys, budget: int, *, monotone: str = "check") -> Cut:
             rejected). A budget below :func:`min_nonempty_budget` gives the coarsest cut, the empty
             one (0 triangles): check that first when the result must be a mesh.
         monotone: ``"check"`` (default: PlodError on violation), ``"repair"`` (use the monotone
-            envelope, :func:`repair_monotone`) or ``"trust"`` (no check; with non-monotone keys the
-            result is the sorted-prefix cut, which may differ from the heap greedy).
+            envelope, :func:`repair_monotone`) or ``"trust"`` (no check: the caller promises monotone
+            keys; with non-monotone keys the result is the sorted prefix, which differs from the heap
+            greedy and need not be closed under ancestors, i.e. is not a cut).
 
     Returns:
         :class:`Cut`, identical to :func:`budget_cut_heap` for monotone keys.
@@ -271,7 +287,10 @@ def threshold_cut(tree, keys, threshold: float = 1.0, *, monotone: str = "check"
     For perceptual keys and threshold 1 this is the imperceptible simplification of
     [LH01 §5.1]: every remaining fold is invisible from the current viewpoint.
     """
-    thr = float(threshold)
+    try:
+        thr = float(threshold)
+    except (TypeError, ValueError):
+        raise PlodError(f"threshold_cut: threshold must be a number, got {threshold!r}") from None
     if np.isnan(thr):
         raise PlodError("threshold_cut: threshold is NaN")
     k, ki = _prepare_keys(tree, keys, monotone, "threshold_cut")
@@ -304,7 +323,10 @@ def extract(tree, cut, normals: str | None = None):
     represents, triangles in input order, so unfolding everything returns the input mesh exactly.
 
     Args:
-        tree: :class:`optim.VertexTree`; cut: a :class:`Cut` or an (N,) bool ``unfolded`` array.
+        tree: :class:`optim.VertexTree`; cut: a :class:`Cut` or an (N,) bool ``unfolded`` array (its
+            leaves' entries are ignored: a leaf has nothing to unfold). An array not closed under
+            ancestors is not a cut; it is accepted with the same rule (each vertex takes the highest
+            folded node above it), but its mesh may fold over itself (:func:`optim.cut_flips`).
         normals: None, or the vertex normals the mesh carries for a renderer that relights it
             (:mod:`optim._normals`): ``"region"``, each vertex the mean normal of the input surface its
             node stands for [Coh98]; ``"faces"``, recomputed from the cut's faces (what a renderer does
@@ -495,11 +517,24 @@ def _take_rows(a: np.ndarray, idx) -> np.ndarray:
 
 
 def _unfolded_mask(tree, cut, who: str = "extract") -> np.ndarray:
-    """The (N,) bool ``unfolded`` array of a :class:`Cut` or of the array itself (checked)."""
-    unf = np.asarray(cut.unfolded if isinstance(cut, Cut) else cut)
+    """The (N,) bool ``unfolded`` array of a :class:`Cut` or of the array itself (checked). A leaf has
+    nothing to unfold, so an array's entries for leaves are ignored (an all-True array is the whole mesh;
+    before, each leaf marked unfolded lost its vertex and the mesh collapsed to one point)."""
+    _check_tree(tree, who)
+    if isinstance(cut, Cut):
+        unf = np.asarray(cut.unfolded)
+    else:
+        try:
+            unf = np.asarray(cut)
+        except (TypeError, ValueError):
+            unf = np.zeros(0)
     N = tree.n_nodes
     if unf.shape != (N,) or unf.dtype != np.bool_:
         raise PlodError(f"{who}: unfolded must be a bool array of shape ({N},), got {unf.dtype} {unf.shape}")
+    if not isinstance(cut, Cut):  # a Cut of this module never marks a leaf
+        internal = _is_internal(tree)
+        if np.any(unf > internal):
+            unf = unf & internal
     return unf
 
 

@@ -16,6 +16,7 @@ numpy, and no library here searches a cut's budget by its culled count.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -28,14 +29,22 @@ __all__ = ["VisibleCut", "facing_away", "drop_back_faces", "visible_budget_cut"]
 
 
 def _eye(view_or_eye) -> np.ndarray:
-    eye = np.asarray(getattr(view_or_eye, "eye", view_or_eye), np.float64)
-    if eye.shape != (3,) or not np.isfinite(eye).all():
-        raise PlodError(f"facing_away: the eye must be 3 finite numbers (or a View), got shape {eye.shape}")
+    try:
+        eye = np.asarray(getattr(view_or_eye, "eye", view_or_eye), np.float64)
+    except (TypeError, ValueError):
+        eye = None
+    if eye is None or eye.shape != (3,) or not np.isfinite(eye).all():
+        raise PlodError(f"facing_away: the eye must be 3 finite numbers (or a View), got {view_or_eye!r}")
+    if np.abs(eye).max() > 1e150:  # its squared distances would overflow, and the margin test with them
+        raise PlodError(f"facing_away: the eye must lie within 1e150 units of 0, got {eye.tolist()}")
     return eye
 
 
 def _check_margin(margin_deg) -> float:
-    m = float(margin_deg)
+    try:
+        m = math.nan if isinstance(margin_deg, (bool, np.bool_)) else float(margin_deg)
+    except (TypeError, ValueError):
+        m = math.nan
     if not (0.0 <= m < 90.0):
         raise PlodError(f"facing_away: margin_deg must be in [0, 90) deg, got {margin_deg!r}")
     return m
@@ -50,10 +59,23 @@ def facing_away(vertices, faces, view_or_eye, margin_deg: float = 0.0) -> np.nda
     zero-area triangles never count as facing away (they draw nothing either way)."""
     eye = _eye(view_or_eye)
     m = _check_margin(margin_deg)
-    f = np.asarray(faces)
+    v, f = _mesh_arrays(vertices, faces, "facing_away")
     if f.size == 0:
         return np.zeros(0, bool)
-    return _away(*face_normal_columns(vertices, f), eye, m)
+    return _away(*face_normal_columns(v, f), eye, m)
+
+
+def _mesh_arrays(vertices, faces, who: str):
+    """(vertices (V, 3) float64, faces (T, 3) int64) checked as :func:`optim.validate_mesh` checks them
+    (shapes, NaN, index range; PlodError naming ``who``), except that no faces is allowed here."""
+    from ._mesh import _check_arrays
+
+    if np.shape(faces) == (0, 3):
+        v = np.asarray(vertices, np.float64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise PlodError(f"{who}: vertices must have shape (V, 3), got {v.shape}")
+        return v, np.zeros((0, 3), np.int64)
+    return _check_arrays(vertices, faces, who)
 
 
 def _away(p0, n, eye: np.ndarray, margin_deg: float) -> np.ndarray:
@@ -127,10 +149,19 @@ def drop_back_faces(mesh, view_or_eye, margin_deg: float = 0.0):
     the full mesh's image (recomputing normals from the remaining faces would tilt the silhouette
     vertices' normals)."""
     eye, m = _eye(view_or_eye), _check_margin(margin_deg)
-    v, f, c = mesh[:3]
+    if not isinstance(mesh, (tuple, list)) or len(mesh) not in (3, 4):
+        raise PlodError("drop_back_faces: mesh must be (vertices, faces, colors) or (vertices, faces, colors, normals)"
+                        f" as optim.extract returns it, got {type(mesh).__name__}")
+    v, f = _mesh_arrays(mesh[0], mesh[1], "drop_back_faces")
+    if np.issubdtype(np.asarray(mesh[1]).dtype, np.integer):
+        f = np.asarray(mesh[1])  # checked; kept in its own dtype (extract's int32)
+    c = mesh[2]
     given = mesh[3] if len(mesh) > 3 else None
-    v = np.asarray(v, np.float64)
-    f = np.asarray(f)
+    if given is not None:
+        given = np.asarray(given, np.float64)
+        if given.shape != v.shape or not np.isfinite(given).all():
+            raise PlodError(f"drop_back_faces: normals must be finite, shape {v.shape} like the vertices, got "
+                            f"shape {given.shape}")
     if f.size == 0:
         return v, f, c, (np.zeros_like(v) if given is None else given)
     p0, n = face_normal_columns(v, f)  # once, for the facing test and the vertex normals
@@ -172,15 +203,19 @@ def visible_budget_cut(tree, keys, budget: int, view_or_eye, *, margin_deg: floa
     share changes little between frames, so the search often ends at its first or second cut). Returns a :class:`VisibleCut` whose mesh has the back faces removed
     (:func:`drop_back_faces`) and carries ``normals`` (``"faces"``: the whole cut's; ``"region"``: each
     vertex its region's mean normal, :func:`optim.extract`)."""
-    from ._cut import _check_budget, budget_cut, extract
+    from ._cut import _check_budget, _check_tree, budget_cut, extract
     from ._normals import check_normals
 
     if normals is None:
         raise PlodError("visible_budget_cut: normals must be 'region' or 'faces' (the mesh always carries normals)")
     check_normals(normals, "visible_budget_cut")
+    _check_tree(tree, "visible_budget_cut")
     budget = _check_budget(budget)
-    if not (0.0 <= tolerance < 1.0) or int(max_evaluations) < 1:
-        raise PlodError("visible_budget_cut: tolerance must be in [0, 1) and max_evaluations >= 1")
+    whole = isinstance(max_evaluations, (int, np.integer)) and not isinstance(max_evaluations, (bool, np.bool_))
+    if not whole or max_evaluations < 1:
+        raise PlodError(f"visible_budget_cut: max_evaluations must be an integer >= 1, got {max_evaluations!r}")
+    if not (isinstance(tolerance, (int, float, np.integer, np.floating)) and 0.0 <= tolerance < 1.0):
+        raise PlodError(f"visible_budget_cut: tolerance must be a number in [0, 1), got {tolerance!r}")
     total = int(tree.n_triangles)
     tried = {}
 

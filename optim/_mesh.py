@@ -174,7 +174,10 @@ def validated_mesh_and_normals(vertices, faces, colors=None, *, name: str = "mes
         zero_area=int(np.count_nonzero(np.einsum("ij,ij->i", cr, cr) == 0.0)),
         nonmanifold_edges=_count_nonmanifold(f, v.shape[0]) if count_nonmanifold else -1,
     )
-    return ValidatedMesh(np.ascontiguousarray(v), np.ascontiguousarray(f.astype(np.int32)), c, report), cr
+    v = np.ascontiguousarray(v)
+    if np.may_share_memory(v, vertices):  # the result is the caller's array: a copy of its own, so that
+        v = v.copy()  # changing the caller's array later cannot change a tree built from it
+    return ValidatedMesh(v, np.ascontiguousarray(f.astype(np.int32)), c, report), cr
 
 
 def _check_arrays(vertices, faces, name: str):
@@ -197,6 +200,8 @@ def _check_arrays(vertices, faces, name: str):
         raise PlodError(f"{name}: empty mesh (no faces)")
     if not np.issubdtype(f.dtype, np.integer):
         if np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f)):
+            if np.abs(f).max() >= 2.0 ** 62:  # would not survive the cast to int64
+                raise PlodError(f"{name}: face indices out of range [0, {v.shape[0]}) (max |index| {np.abs(f).max():g})")
             f = f.astype(np.int64)
         else:
             raise PlodError(f"{name}: face indices must be integers, got dtype {f.dtype}")
@@ -242,7 +247,11 @@ def _check_colors(colors, nv: int, name: str):
         raise PlodError(f"{name}: colors must have shape (V, 3) or (V, 4) with V = {nv}, got {c.shape}")
     c = c[:, :3]
     if np.issubdtype(c.dtype, np.integer):
-        c = c.astype(np.float32) / 255.0
+        if c.size and (c.min() < 0 or c.max() > 255):
+            raise PlodError(f"{name}: integer colors must lie in 0..255 (got {c.min()}..{c.max()})")
+        return c.astype(np.float32) / np.float32(255.0)
+    if not np.issubdtype(c.dtype, np.floating):
+        raise PlodError(f"{name}: colors must be real numbers (floats in [0, 1] or integers 0..255), got dtype {c.dtype}")
     c = c.astype(np.float32)
     if not np.all(np.isfinite(c)):
         raise PlodError(f"{name}: colors contain NaN or infinite values")

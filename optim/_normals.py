@@ -73,13 +73,19 @@ def cut_normals(tree, vertices, faces, nodes, normals: str, rows=None) -> np.nda
     from ._normal_cube import _unit
     from ._tree import _vertex_normals
 
+    if normals is None or check_normals(normals, "cut_normals") is None:
+        raise PlodError(f"cut_normals: normals must be 'region' or 'faces', got {normals!r}")
     v = np.asarray(vertices, np.float64)
     if normals == "faces":
         return _unit(_vertex_normals(v, np.asarray(faces)))
     from ._cut import _take_rows
 
-    if rows is None:
-        rows = _take_rows(region_normals(tree), np.asarray(nodes))  # float32 records: one gather
+    if rows is None:  # a caller's nodes (extract passes the rows it gathered): checked
+        nodes = np.asarray(nodes)
+        if nodes.shape != (len(v),) or not np.issubdtype(nodes.dtype, np.integer) or \
+                (nodes.size and (nodes.min() < 0 or nodes.max() >= tree.n_nodes)):
+            raise PlodError(f"cut_normals: nodes must be ({len(v)},) node indices in [0, {tree.n_nodes}), one per vertex")
+        rows = _take_rows(region_normals(tree), nodes)  # float32 records: one gather
     out = rows.astype(np.float64)
     none = ~rows.view(np.uint32).any(axis=1)  # a zero row: its 3 words are 0 (-0.0 cannot arise from the division)
     if none.any():

@@ -66,6 +66,7 @@ import numpy as np
 from pmetric import PlodError
 
 from ._levels import Levels, expand_ranges, level_runs
+from ._mesh import COORD_MAX, DIAGONAL_MIN
 from ._normal_cube import _unit
 
 __all__ = ["PointHierarchy", "Traversal", "PointTerms", "build_points", "points_from_mesh", "load_points",
@@ -77,7 +78,6 @@ _PAD = 1024
 
 
 # ----------------------------------------------------------------------------------------------- input
-_MAX_COORD = 1e150  # object units: beyond this, squared distances overflow float64
 
 
 def _check_points(points, normals, colors, name: str = "build_points"):
@@ -93,10 +93,18 @@ def _check_points(points, normals, colors, name: str = "build_points"):
     if not np.isfinite(p).all():
         raise PlodError(f"{name}: points contain NaN or infinite coordinates "
                         f"(first at point {int(np.flatnonzero(~np.isfinite(p).all(1))[0])})")
+    # the scales the float32 traversal handles, as for meshes (measured: a unit sphere's cloud draws the same
+    # splats scaled by 1e-18 .. 1e18; at 1e-20 every leaf, at 1e20 one splat)
     big = float(np.abs(p).max())
-    if big > _MAX_COORD:  # squared distances (the k-d tree's, the spheres') would overflow float64
-        raise PlodError(f"{name}: coordinates up to {big:g} exceed {_MAX_COORD:g}; scale the points (a power of "
+    if big > COORD_MAX:
+        raise PlodError(f"{name}: coordinates up to {big:g} exceed {COORD_MAX:g}; scale the points (a power of "
                         "two keeps them exact)")
+    if len(p) > 1:
+        diag = float(np.linalg.norm(p.max(0) - p.min(0)))
+        if diag < DIAGONAL_MIN:
+            what = "all points coincide (bounding-box diagonal 0)" if diag == 0 else \
+                f"bounding-box diagonal {diag:g} is below {DIAGONAL_MIN:g}; scale the points (a power of two keeps them exact)"
+            raise PlodError(f"{name}: {what}")
     try:
         n = np.asarray(normals, dtype=np.float64)
     except (TypeError, ValueError):
@@ -105,10 +113,12 @@ def _check_points(points, normals, colors, name: str = "build_points"):
         raise PlodError(f"{name}: normals must have shape {p.shape} like the points, got {n.shape}")
     if not np.isfinite(n).all():
         raise PlodError(f"{name}: normals contain NaN or infinite values")
-    length = np.linalg.norm(n, axis=1)
-    if (length == 0).any():
-        raise PlodError(f"{name}: {int((length == 0).sum())} normal(s) are zero (point {int(np.argmin(length))} "
+    m = np.abs(n).max(1)  # scaled by the largest component first: 1e-200 or 1e200 long normals are directions too
+    if (m == 0).any():
+        raise PlodError(f"{name}: {int((m == 0).sum())} normal(s) are zero (point {int(np.argmin(m))} "
                         "first); every point needs a direction")
+    n = n / m[:, None]
+    length = np.linalg.norm(n, axis=1)
     c = None
     if colors is not None:
         try:
@@ -354,6 +364,8 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
     p, n_in, c = _check_points(points, normals, colors)
     if not isinstance(leaf_k, (int, np.integer)) or isinstance(leaf_k, bool) or leaf_k < 1:
         raise PlodError(f"build_points: leaf_k must be a positive integer, got {leaf_k!r}")
+    if progress is not None and not callable(progress):
+        raise PlodError(f"build_points: progress must be None or a callable (stage, done, total), got {progress!r}")
     report = progress if progress is not None else (lambda *a: None)
     P = len(p)
     report("split", 0, 4)
@@ -591,10 +603,21 @@ class Traversal(NamedTuple):
         return len(self.drawn)
 
 
+def _node_flags(h, a, name: str, who: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.shape != (h.n_nodes,) or a.dtype != np.bool_:
+        raise PlodError(f"{who}: {name} must be a bool array of shape ({h.n_nodes},) (one per node), got {a.dtype} "
+                        f"{a.shape}")
+    return a
+
+
 def walk(h: PointHierarchy, culled: np.ndarray, stop: np.ndarray):
     """The traversal of [LH01 §4] over per-node flags, level by level from the root: a ``culled``
     node is skipped with its subtree, a leaf or a ``stop`` node is drawn, any other node is replaced
     by its children. Returns (drawn, skipped, visited)."""
+    if not isinstance(h, PointHierarchy):
+        raise PlodError(f"walk: h must be a PointHierarchy, got {type(h).__name__}")
+    culled, stop = _node_flags(h, culled, "culled", "walk"), _node_flags(h, stop, "stop", "walk")
     frontier = np.zeros(1, np.intp)
     drawn, skipped, visited = [], [], 0
     leaf = h.child_count == 0
@@ -622,7 +645,9 @@ def traverse(h: PointHierarchy, view, model=None, *, criterion: str = "perceptua
 
     Out-of-frustum and back-facing nodes are skipped with their subtrees in both. ``model``,
     ``widen``: as :func:`point_terms`; ``terms``: reuse terms already computed for this view."""
-    if criterion not in CRITERIA:
+    if not isinstance(h, PointHierarchy):
+        raise PlodError(f"traverse: h must be a PointHierarchy (optim.build_points), got {type(h).__name__}")
+    if not isinstance(criterion, str) or criterion not in CRITERIA:
         raise PlodError(f"traverse: criterion must be one of {CRITERIA}, got {criterion!r}")
     try:
         px = float(min_px)
@@ -630,6 +655,9 @@ def traverse(h: PointHierarchy, view, model=None, *, criterion: str = "perceptua
         raise PlodError(f"traverse: min_px must be a number of pixels >= 0, got {min_px!r}") from None
     if not np.isfinite(px) or px < 0:
         raise PlodError(f"traverse: min_px must be a finite number of pixels >= 0, got {min_px!r}")
+    if terms is not None and (not isinstance(terms, PointTerms) or np.shape(terms.culled) != (h.n_nodes,)):
+        raise PlodError(f"traverse: terms must be the PointTerms of this hierarchy ({h.n_nodes} nodes), from "
+                        "point_terms(h, view)")
     t = terms if terms is not None else point_terms(h, view, model, widen=widen)
     small = t.size_px <= px
     stop = small if criterion == "size" else (small | ~t.perceptible)
@@ -643,10 +671,25 @@ def splat_discs(h: PointHierarchy, nodes, *, segments: int = 8, tint=None):
     of its radius, in the plane across its normal, wound counter-clockwise seen from the normal (so a
     renderer culling back faces drops back-facing splats). Returns (vertices (K (S+1), 3) float64,
     faces (K S, 3) int64, sRGB colours (K (S+1), 3) float32); ``tint`` (K, 3) sRGB overrides colours."""
-    nodes = np.asarray(nodes, np.intp)
+    if not isinstance(h, PointHierarchy):
+        raise PlodError(f"splat_discs: h must be a PointHierarchy, got {type(h).__name__}")
+    raw = np.asarray(nodes)
+    if raw.ndim != 1 or not (np.issubdtype(raw.dtype, np.integer) or raw.size == 0):
+        raise PlodError(f"splat_discs: nodes must be a 1-D array of node indices, got {raw.dtype} {raw.shape}")
+    nodes = raw.astype(np.intp)
+    if nodes.size and (nodes.min() < 0 or nodes.max() >= h.n_nodes):
+        raise PlodError(f"splat_discs: node indices must lie in [0, {h.n_nodes}), got {nodes.min()}..{nodes.max()}")
+    if not isinstance(segments, (int, np.integer)) or isinstance(segments, bool) or segments < 3:
+        raise PlodError(f"splat_discs: segments must be an integer >= 3, got {segments!r}")
     s = int(segments)
-    if s < 3:
-        raise PlodError(f"splat_discs: segments must be at least 3, got {segments!r}")
+    if tint is not None:
+        try:
+            tint = np.asarray(tint, np.float32)
+        except (TypeError, ValueError):
+            tint = None
+        if tint is None or tint.shape != (len(nodes), 3) or not np.isfinite(tint).all() or tint.min() < 0 \
+                or tint.max() > 1:
+            raise PlodError(f"splat_discs: tint must be ({len(nodes)}, 3) sRGB colours in [0, 1]")
     nrm = h.normal[nodes]
     helper = np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     u = _unit(np.cross(nrm, helper))
@@ -659,5 +702,5 @@ def splat_discs(h: PointHierarchy, nodes, *, segments: int = 8, tint=None):
     base = (np.arange(len(nodes)) * (s + 1))[:, None]
     j = np.arange(s)[None]
     f = np.stack([base + 0 * j, base + 1 + j, base + 1 + (j + 1) % s], axis=-1).reshape(-1, 3)
-    col = h.srgb(nodes) if tint is None else np.asarray(tint, np.float32)
+    col = h.srgb(nodes) if tint is None else tint
     return v, f.astype(np.int64), np.repeat(col, s + 1, axis=0)

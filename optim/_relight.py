@@ -151,8 +151,7 @@ def slab_half_width(tree):
 
 def _lambert_range(axis, half, light: Lighting):
     """(lowest, highest, along-axis) relative intensity over each cone under ``light``, (N,) float64."""
-    d = np.asarray(light.direction, np.float64)
-    d = d / np.linalg.norm(d)
+    d = light.unit
     a = np.arccos(np.clip(axis.astype(np.float64) @ d, -1.0, 1.0))
     b = half.astype(np.float64)
     hi_cos = np.cos(np.maximum(a - b, 0.0))  # the cone's normal nearest the light

@@ -628,8 +628,10 @@ def score(tree, view, model=None, metric: str = "perceptual", *, exact: bool = F
     (pixels). Leaves, culled nodes (outside the frustum, wholly back facing) and their subtrees get 0.
     Keys are monotone: ``key[parent] >= key[child]`` [LH01 fn 2].
     """
-    if metric not in METRICS:
+    if not isinstance(metric, str) or metric not in METRICS:
         raise PlodError(f"score: metric must be one of {METRICS}, got {metric!r}")
+    if not isinstance(exact, (bool, np.bool_)):
+        raise PlodError(f"score: exact must be True or False, got {exact!r}")
     ctx = scoring_context(tree, getattr(view, "lighting", None))
     vp = view_params(view, ctx.scene_lum, ctx.origin)
     ktab = None

@@ -11,6 +11,7 @@ standard computer monitor, normalized to the range [0, 1]").
 from __future__ import annotations
 
 import dataclasses
+import math
 import hashlib
 import json
 import os
@@ -56,17 +57,33 @@ class Lighting:
     two_sided: bool = False
 
     def __post_init__(self):
-        d = np.asarray(self.direction, dtype=np.float64)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+        try:
+            d = np.asarray(self.direction, dtype=np.float64)
+        except (TypeError, ValueError):
+            d = None
+        if d is None or d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
             raise PlodError(f"Lighting: direction must be a finite nonzero 3-vector, got {self.direction!r}")
         for k in ("ambient", "diffuse"):
-            x = float(getattr(self, k))
-            if not np.isfinite(x) or x < 0:
-                raise PlodError(f"Lighting: {k} must be a finite number >= 0, got {x!r}")
+            v = getattr(self, k)
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                x = math.nan
+            if isinstance(v, (bool, np.bool_)) or not np.isfinite(x) or x < 0:
+                raise PlodError(f"Lighting: {k} must be a finite number >= 0, got {v!r}")
+            object.__setattr__(self, k, x)
+        if not isinstance(self.two_sided, (bool, np.bool_)):
+            raise PlodError(f"Lighting: two_sided must be True or False, got {self.two_sided!r}")
         object.__setattr__(self, "direction", tuple(float(x) for x in d))
-        object.__setattr__(self, "ambient", float(self.ambient))
-        object.__setattr__(self, "diffuse", float(self.diffuse))
         object.__setattr__(self, "two_sided", bool(self.two_sided))
+
+    @property
+    def unit(self) -> np.ndarray:
+        """(3,) float64 unit vector towards the light (scaled by its largest component first, so a
+        direction of 1e-200 or 1e200 units neither underflows nor overflows)."""
+        d = np.asarray(self.direction, np.float64)
+        d = d / np.abs(d).max()
+        return d / np.linalg.norm(d)
 
     @classmethod
     def coerce(cls, x) -> "Lighting":
@@ -80,6 +97,9 @@ class Lighting:
             if unknown:
                 raise PlodError(f"Lighting: unknown fields {sorted(unknown)}")
             return cls(**x)
+        if isinstance(x, (tuple, list)) and any(isinstance(y, cls) for y in x):
+            raise PlodError(f"lighting: one light only (a directional light plus ambient), got {len(x)} Lighting "
+                            "objects")
         if isinstance(x, (tuple, list)) and len(x) in (1, 2, 3, 4):
             return cls(*x)
         raise PlodError(f"lighting must be None, a Lighting, a dict or a tuple; got {type(x).__name__}")
@@ -96,7 +116,7 @@ class Lighting:
             vals = []
         if len(vals) not in (3, 4) or not np.all(np.isfinite(vals)):
             raise PlodError(f"{flag} needs DX,DY,DZ or DX,DY,DZ,AMBIENT (finite numbers), got {text!r}")
-        if np.linalg.norm(vals[:3]) == 0:
+        if not np.any(vals[:3]):
             raise PlodError(f"{flag}: the light direction must be nonzero, got {text!r}")
         amb = vals[3] if len(vals) == 4 else cls.ambient
         if not 0.0 <= amb <= 1.0:
@@ -113,9 +133,7 @@ class Lighting:
 
     def intensity(self, normals: np.ndarray, dtype=np.float32) -> np.ndarray:
         """Relative luminance (K,) ``dtype`` (computed in float64) for unit normals (K, 3)."""
-        d = np.asarray(self.direction, dtype=np.float64)
-        d = d / np.linalg.norm(d)
-        ndl = np.asarray(normals, dtype=np.float64) @ d
+        ndl = np.asarray(normals, dtype=np.float64) @ self.unit
         return self.shade(np.abs(ndl) if self.two_sided else ndl).astype(dtype)
 
 
@@ -142,11 +160,20 @@ def vertex_luminance(vertices, faces, colors=None, lighting=None) -> np.ndarray:
     With colours: relative luminance of linearised sRGB. Without: :class:`Lighting` applied to
     area-weighted vertex normals ([LHNW00] assumes pre-lit models).
     """
-    if colors is not None:
-        return _srgb_luminance(colors)
+    from ._mesh import _check_arrays, _check_colors
+
+    if colors is not None:  # the mesh is not needed (it may be None); the colours are one per vertex
+        if vertices is not None and np.ndim(vertices) == 2:
+            nv = np.shape(vertices)[0]
+        else:
+            nv = np.shape(colors)[0] if np.ndim(colors) else -1
+        return _srgb_luminance(_check_colors(colors, nv, "vertex_luminance"))
+    if np.shape(faces) == (0, 3):  # no faces (e.g. a cut drawn without its back faces): ambient only
+        v, f = np.asarray(vertices, np.float64).reshape(-1, 3), np.zeros((0, 3), np.int64)
+    else:
+        v, f = _check_arrays(vertices, faces, "vertex_luminance")  # shapes, NaN, index range (PlodError)
     light = Lighting.coerce(lighting)
-    v = np.asarray(vertices, dtype=np.float64)
-    return light.intensity(_unit(_vertex_normals(v, np.asarray(faces))))
+    return light.intensity(_unit(_vertex_normals(v, f)))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -38,6 +38,14 @@ from pmetric import PlodError
 __all__ = ["View"]
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` as a read-only array of the View's own (a caller's array is copied, so changing it later
+    cannot change the view or leave its cached geometry stale)."""
+    a = np.array(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a
+
+
 def _vec3(name: str, x) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=np.float64)
@@ -47,7 +55,17 @@ def _vec3(name: str, x) -> np.ndarray:
         raise PlodError(f"View: {name} must be three numbers (shape (3,)), got shape {a.shape}")
     if not np.isfinite(a).all():
         raise PlodError(f"View: {name} must be finite, got {a.tolist()}")
-    return a
+    return _frozen(a)
+
+
+def _number(x) -> float:
+    """``float(x)``, or NaN for what is not a real number (a string, None, a bool), for the range checks."""
+    if isinstance(x, (bool, np.bool_)):
+        return math.nan
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def _positive(name: str, x, *, upper: float | None = None) -> float:
@@ -133,22 +151,23 @@ class View(eqx.Module):
         if image_size is None:
             image_size = display.resolution
         try:
-            w, h = (int(s) for s in image_size)
-        except (TypeError, ValueError):
-            raise PlodError(
-                f"View: image_size must be two positive integers (width, height), got {image_size!r}") from None
-        if w <= 0 or h <= 0:
+            wh = [s for s in image_size]
+            w, h = (int(s) for s in wh)
+            whole = len(wh) == 2 and all(not isinstance(s, (bool, np.bool_)) and s == int(s) for s in wh)
+        except (TypeError, ValueError, OverflowError):
+            whole = False
+        if not whole or w <= 0 or h <= 0:
             raise PlodError(f"View: image_size must be two positive integers (width, height), got {image_size!r}")
         self.width, self.height = w, h
         if fov_deg is None:  # the physically correct camera: the image spans what the viewer sees of it
             py = float(display.height) / display.resolution[1]
             fov_deg = math.degrees(2 * math.atan(0.5 * h * py / float(display.distance)))
         self.fov_deg = _positive("fov_deg (vertical field of view, deg)", fov_deg, upper=180.0)
-        ge = float(gaze_error_deg)
+        ge = _number(gaze_error_deg)
         if not math.isfinite(ge) or ge < 0:
             raise PlodError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
         self.gaze_error_deg = ge
-        bg = float(background)
+        bg = _number(background)
         if not (0.0 <= bg <= 1.0):
             raise PlodError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
         self.background = bg
@@ -170,7 +189,8 @@ class View(eqx.Module):
 
             lighting = Lighting.coerce(lighting)
         self.lighting = lighting
-        self.gaze_px = self._gaze_pixels(gaze)
+        g = self._gaze_pixels(gaze)
+        self.gaze_px = None if g is None else _frozen(g)
 
     @classmethod
     def framing(cls, vertices, object_deg: float = 30.0, direction=(0.0, 0.0, 1.0), up=(0.0, 1.0, 0.0),

@@ -276,7 +276,10 @@ def test_load_points_from_mesh(tmp_path):
     ("zero_normal", "normal\\(s\\) are zero"),
     ("colors_shape", "colors must have shape"),
     ("leaf_k", "leaf_k must be a positive integer"),
-    ("huge", r"coordinates up to 1e\+200 exceed 1e\+150"),  # was scipy's "data must be finite" (they were)
+    ("huge", r"coordinates up to 1e\+200 exceed 1e\+15"),  # was scipy's "data must be finite" (they were)
+    ("large", r"coordinates up to \S+e\+29 exceed 1e\+15"),  # was accepted: one splat for the whole cloud
+    ("tiny", r"diagonal \S+e-20 is below 1e-15"),  # was accepted: every leaf drawn
+    ("coincide", r"all points coincide"),  # was accepted: one splat of radius 0
 ])
 def test_bad_input_one_line(case, match):
     p = np.random.default_rng(0).random((5, 3))
@@ -296,9 +299,26 @@ def test_bad_input_one_line(case, match):
         kw["leaf_k"] = 0
     elif case == "huge":
         p[1, 0] = 1e200
+    elif case == "large":
+        p *= 1e30
+    elif case == "tiny":
+        p *= 1e-20
+    elif case == "coincide":
+        p[:] = p[0]
     with pytest.raises(pm.PlodError, match=match) as exc:
         build_points(p, n, **kw)
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("scale", [1e-14, 1e14])
+def test_the_scales_the_traversal_handles(scale):
+    """Near the accepted scales' ends (diagonal >= 1e-15, coordinates <= 1e15) a cloud draws the splats it
+    draws at its own size, and normals of any length are directions (1e-200 or 1e200 long: before, one
+    was refused as "zero" and the other overflowed to a zero normal)."""
+    P, N, _ = optim.points_from_mesh(*optim.bumpy_sphere(2))
+    ref = traverse(build_points(P, N), optim.View(eye=(0, 0, 4)))
+    got = traverse(build_points(P * scale, N * (1e-200 if scale < 1 else 1e200)), optim.View(eye=(0, 0, 4 * scale)))
+    assert got.splats == ref.splats > 1
 
 
 def test_bad_traversal_and_files(sheet, tmp_path):
