@@ -114,6 +114,12 @@ def simplification(subdivisions: int, budget_fraction: float, gaze_deg: float = 
     perceptual = optim.score(tree, view, model, metric="perceptual")
     score_ms = 1e3 * (time.perf_counter() - t0)
     budget = max(int(budget_fraction * len(faces)), 1)
+    from optim._cut import min_nonempty_budget
+
+    least = min_nonempty_budget(tree, perceptual)
+    if budget < least:  # before, 0-triangle cuts were judged and reported
+        raise PlodError(f"--budget-fraction {budget_fraction:g} gives {budget} of {len(faces)} triangles, below the "
+                        f"smallest non-empty cut ({least}); use at least {least / len(faces):.2g}")
     rows, results = {}, {}
 
     def timed(name, keys_fn, cut_fn):

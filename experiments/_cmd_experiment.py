@@ -4,7 +4,8 @@ budgets x methods from a short TOML config and write ``results.parquet`` (or ``r
 
 Cells run on ``--workers`` local processes (default: the CPUs, at most 4) or on a Dask cluster given
 ``--scheduler tcp://HOST:PORT``; ``--resume`` finishes an interrupted run in the same ``--out`` folder
-without repeating its finished cells. A rich progress bar with an ETA is drawn on a terminal.
+without repeating its finished cells. A rich progress bar with an ETA is drawn on a terminal. A cell that
+fails is recorded in the report and the sweep goes on; the command then exits 1, naming the first failure.
 """
 
 from __future__ import annotations
@@ -64,6 +65,14 @@ def run(args) -> int:
     if kind in KINDS:  # an experiment of its own module (its run_config), not a sweep of the runner
         import importlib
 
+        from pmetric import PlodError
+
+        given = [f for f, on in (("--workers", args.workers is not None), ("--scheduler", bool(args.scheduler)),
+                                 ("--resume", args.resume), ("--no-examples", args.no_examples)) if on]
+        if given:  # before, ignored silently (a --resume ran everything again and emptied the journal)
+            raise PlodError(f"{given[0]} does not apply to a config of kind {kind!r} (it runs in this process, "
+                            "from the start); only --out does")
+
         run_config = importlib.import_module(f"experiments.{kind}").run_config
         with rich_progress(kind.replace("_", " ")) as cb:
             out = run_config(args.config, out=None if args.out is None else Path(args.out).resolve(), progress=cb)
@@ -87,8 +96,12 @@ def run(args) -> int:
         rows = E.run_experiment(cfg, out=out, workers=workers, scheduler=args.scheduler, resume=args.resume,
                                 progress=progress)
     write_report(rows, cfg, out, command, examples=not args.no_examples)
-    failed = sum(1 for r in rows if r.get("error"))
+    failed = [r for r in rows if r.get("error")]
     table = "results.parquet" if (out / "results.parquet").exists() else "results.csv"
     print(f"wrote {out / 'report.md'} and {out / table}: {len(rows)} cells"
-          + (f", {failed} failed (see the report)" if failed else ""))
+          + (f", {len(failed)} failed (see the report; --resume runs them again)" if failed else ""))
+    if failed:  # exit 1, so that a script sees it: the first failure in one line
+        print(f"plod experiment: {len(failed)} of {len(rows)} cells failed; first: {failed[0]['cell']}: "
+              f"{failed[0]['error']}", file=sys.stderr)
+        return 1
     return 0

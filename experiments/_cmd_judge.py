@@ -92,8 +92,8 @@ def judge_files(args) -> dict:
     outs = _outputs(args)
     light = _lighting(args.light)
     object_deg = _floats("--object-deg", args.object_deg, (1,))[0]
-    if not 0 < object_deg < 180:
-        raise PlodError(f"--object-deg must be in (0, 180) deg, got {args.object_deg!r}")
+    if not 0.01 <= object_deg < 180:
+        raise PlodError(f"--object-deg must be in [0.01, 180) deg, got {args.object_deg!r}")
     direction = _floats("--direction", args.direction, (3,))
     if not any(direction):
         raise PlodError(f"--direction must be nonzero, got {args.direction!r}")
@@ -104,14 +104,17 @@ def judge_files(args) -> dict:
     if args.size is not None:
         vals = _floats("--size", args.size, (2,))
         size = tuple(int(x) for x in vals)
-        if any(x != int(x) or not 1 <= x <= 8192 for x in vals):
-            raise PlodError(f"--size must be two integers in 1..8192, got {args.size!r}")
+        if any(x != int(x) or not 16 <= x <= 8192 for x in vals):  # FovVideoVDP fails below 4 pixels
+            raise PlodError(f"--size must be two integers in 16..8192, got {args.size!r}")
     meshes = {}
     for key in ("original", "result"):
         path = Path(getattr(args, key))
         if not path.is_file():
             raise PlodError(f"mesh file not found: {str(path)!r}")
         meshes[key] = optim.load_mesh(path, normals=True)  # relit: shaded from the file's normals if it has them
+    # the view is framed on the original: one without extent (all vertices at one point) frames nothing
+    optim.validate_mesh(*meshes["original"][:2], name=f"the original mesh {str(args.original)!r}",
+                        count_nonmanifold=False)
     view = J.offset_gaze_view(meshes["original"][0], gaze, object_deg=object_deg, direction=direction)
     try:
         import pyfvvdp  # noqa: F401

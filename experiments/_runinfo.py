@@ -22,9 +22,22 @@ ROOT = Path(__file__).resolve().parent.parent  # the repository
 
 
 def repo_path(p: str | Path) -> Path:
-    """``p`` itself when absolute, else relative to the repository root (config paths)."""
+    """``p`` itself when absolute, else relative to the repository root (config paths). An empty path is a
+    PlodError (it would name the repository root itself: an ``out = ""`` wrote reports there)."""
+    if not str(p).strip():
+        raise PlodError("a path in the config is empty; give a file or folder name")
     q = Path(p)
     return q if q.is_absolute() else ROOT / q
+
+
+def check_out_dir(out: Path) -> Path:
+    """``out`` (an experiment's output folder), unless it is the repository root or a folder above it
+    (PlodError: a run would scatter its tables and plots among the project's files)."""
+    r = Path(out).resolve()
+    if r == ROOT.resolve() or r in ROOT.resolve().parents:
+        raise PlodError(f"output folder {str(out)!r} is the repository root or above it; give a folder of its own "
+                        "(e.g. reports/NAME)")
+    return out
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxopt", "numpy", "scipy", "trimesh",
              "emcee", "matplotlib", "fast-simplification", "meshoptimizer", "rich")
@@ -72,7 +85,7 @@ def load_config(path: str | Path | None, defaults: Mapping[str, Any]) -> dict:
         raise FileNotFoundError(f"config file not found: {p}")
     try:
         overrides = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlodError(f"malformed TOML in {p}: {exc}") from None
     return _merge(defaults, overrides, "")
 
@@ -118,7 +131,7 @@ def save_run_info(out_dir: str | Path, config: Mapping[str, Any], seed: int | No
 
 
 # User errors: printed as one line, never a traceback (PlodError is a ValueError).
-USER_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, PermissionError)
+USER_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, FileExistsError, PermissionError)
 
 
 def report_errors(fn, prog: str) -> int:

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, save_run_info
+from experiments._runinfo import check_out_dir, load_config, repo_path, save_run_info
 from experiments.experiment import baked_grey, procedural_mesh, view_directions  # noqa: F401  (shared with the runner)
 from pmetric import PlodError, atomic_write_text
 
@@ -241,7 +241,7 @@ def _cell_id(name, vi, g, lighting):
 
 def run_sweep(cfg, *, resume=False, model_lights=True, progress=None):
     """Run (or resume) the sweep; returns all result rows (dicts with the cell's ids)."""
-    out = repo_path(cfg["out"])
+    out = check_out_dir(repo_path(cfg["out"]))
     out.mkdir(parents=True, exist_ok=True)
     path = out / "results.jsonl"
     done = {}
@@ -523,7 +523,7 @@ def main(argv=None) -> int:
         raise PlodError(f"accuracy config: normals must be one of {', '.join(NORMALS)}, got {cfg['normals']!r}")
     if args.out:
         cfg["out"] = args.out
-    out = repo_path(cfg["out"])
+    out = check_out_dir(repo_path(cfg["out"]))
     command = "python -m experiments.accuracy " + " ".join(argv if argv is not None else sys.argv[1:])
     from experiments._progress import rich_progress
 

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, run_script, save_run_info
+from experiments._runinfo import check_out_dir, load_config, repo_path, run_script, save_run_info
 from pmetric import PlodError, atomic_write_text
 
 DEFAULTS = {
@@ -90,7 +90,7 @@ def clip_results(mesh, start, gaze_deg: float, cfg, progress=None) -> list[dict]
     from experiments.judge import fovvdp_clip
 
     n, fps = int(cfg["frames"]), float(cfg["fps"])
-    if n < 2 or not fps > 0:
+    if n < 2 or not fps > 0:  # (check_config says so first, naming the key)
         raise PlodError(f"accuracy_motion: frames must be >= 2 and fps > 0, got {n!r}, {fps!r}")
     views, moving = orbit_views(mesh.v, start, gaze_deg, n, fps, float(cfg["orbit_deg_s"]), cfg)
     tree, light, size = mesh.tree["relit"], optim.Lighting(), tuple(cfg["size"])
@@ -206,16 +206,59 @@ def _plot(rows, path):
     _figures.save_png(fig, path)
 
 
-def run_config(path, out=None, progress=None) -> Path:
-    cfg = load_config(path, DEFAULTS)
-    command = "python -m experiments.accuracy_motion" + (f" --config {path}" if path else "")
+def check_config(cfg: dict) -> dict:
+    """The values of a loaded config, checked before any work (PlodError naming the key): before, a
+    bad ``frames`` or ``size`` was found only after the meshes' trees were built and the journal emptied,
+    and a budget of -5 or a gaze of 1000 deg ran."""
+    from experiments.experiment import _parse_procedural
+
+    def num(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    def whole(x, lo, hi=math.inf):
+        return isinstance(x, int) and not isinstance(x, bool) and lo <= x <= hi
+
+    def bad(key, want):
+        raise PlodError(f"accuracy_motion: config key {key!r} must be {want}, got {cfg[key]!r}")
+
     if cfg["kind"] != "accuracy_motion":
-        raise PlodError(f"accuracy_motion: config kind must be 'accuracy_motion', got {cfg['kind']!r}")
+        bad("kind", "'accuracy_motion'")
+    if not all(isinstance(m, str) and m.strip() for m in cfg["meshes"]):
+        bad("meshes", "a list of mesh file paths")
+    if not all(isinstance(s, str) and _parse_procedural(s) is not None for s in cfg["procedural"]):
+        bad("procedural", "a list of 'sphere:SUBDIV:SEED' or 'torus:NU:NV:SEED'")
+    g = cfg["gaze_offsets_deg"]
+    if not g or not all(num(x) and 0 <= x < 80 for x in g) or len({float(x) for x in g}) != len(g):
+        bad("gaze_offsets_deg", "a non-empty list of distinct angles in [0, 80) deg")
+    if not (num(cfg["gaze_error_deg"]) and 0 <= cfg["gaze_error_deg"] < 90):
+        bad("gaze_error_deg", "an angle in [0, 90) deg")
+    if not (num(cfg["object_deg"]) and 0 < cfg["object_deg"] < 180):
+        bad("object_deg", "an angle in (0, 180) deg")
+    if not (num(cfg["budget"]) and 0 < cfg["budget"] <= 1):
+        bad("budget", "a fraction of the input's triangles in (0, 1]")
+    if not (num(cfg["orbit_deg_s"]) and 0 <= cfg["orbit_deg_s"] <= 3600):
+        bad("orbit_deg_s", "an angular speed in [0, 3600] deg/s")
+    if not (num(cfg["fps"]) and 0 < cfg["fps"] <= 1000):
+        bad("fps", "a frame rate in (0, 1000] Hz")
+    if not whole(cfg["frames"], 2, 10_000):
+        bad("frames", "an integer in 2..10000")
+    if not whole(cfg["still_every"], 1):
+        bad("still_every", "an integer >= 1")
+    if len(cfg["size"]) != 2 or not all(whole(x, 16, 8192) for x in cfg["size"]):
+        bad("size", "two integers in 16..8192 (width, height in pixels)")
+    if not isinstance(cfg["face_cull"], bool):
+        bad("face_cull", "true or false")
+    return cfg
+
+
+def run_config(path, out=None, progress=None) -> Path:
+    cfg = check_config(load_config(path, DEFAULTS))
+    command = "python -m experiments.accuracy_motion" + (f" --config {path}" if path else "")
     try:
         import pyfvvdp  # noqa: F401
     except ImportError:
         raise PlodError("accuracy_motion: the judge extra is missing (pip install -e '.[judge]')") from None
-    out = Path(out or repo_path(cfg["out"]))
+    out = check_out_dir(Path(out or repo_path(cfg["out"])))
     rows = run(cfg, out, progress)
     head = ["# Plod's cuts judged in motion (FovVideoVDP on rendered orbits)", "",
             f"Command: `{command}`. Relit, {cfg['frames']} frames at "

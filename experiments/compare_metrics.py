@@ -23,7 +23,7 @@ def main(argv=None) -> int:
     from experiments import experiment as E
     from experiments._cmd_experiment import _default_workers
     from experiments._experiment_report import write_report
-    from experiments._runinfo import repo_path
+    from experiments._runinfo import check_out_dir, repo_path
 
     ap = argparse.ArgumentParser(prog="python -m experiments.compare_metrics", description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default=None, help=f"runner config (default {CONFIG}; unknown keys are refused)")
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     if args.out:
         cfg["out"] = args.out
     cfg = E.check_config(cfg)
-    out = repo_path(cfg["out"])
+    out = check_out_dir(repo_path(cfg["out"]))
     command = "python -m experiments.compare_metrics " + " ".join(sys.argv[1:] if argv is None else argv)
     rows = E.run_experiment(cfg, out=out, workers=_default_workers() if args.workers is None else args.workers,
                             resume=args.resume)

@@ -65,7 +65,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path
+from experiments._runinfo import check_out_dir, load_config, repo_path
 from pmetric import PlodError, atomic_write_text
 
 __all__ = ["DEFAULTS", "COLUMNS", "load_experiment_config", "cells", "run_cell", "run_experiment",
@@ -144,10 +144,10 @@ def _layer(path: Path, defaults: dict, depth: int = 0) -> tuple[dict, _Where]:
         raise PlodError(f"config {path}: 'base' chain deeper than 8 (a cycle?)")
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
-    text = path.read_text(encoding="utf-8")
     try:
+        text = path.read_text(encoding="utf-8")
         raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlodError(f"malformed TOML in {path}: {exc}") from None
     where = _Where(path, key_lines(text))
     for key in raw:
@@ -203,12 +203,12 @@ def check_config(cfg: dict, where: Callable[[str], str] = repr) -> dict:
     for spec in cfg["procedural"]:
         if not isinstance(spec, str) or _parse_procedural(spec) is None:
             raise PlodError(f"config key {where('procedural')}: {spec!r} is not 'sphere:SUBDIV:SEED' (SUBDIV 0..8) "
-                            "or 'torus:NU:NV:SEED'")
+                            "or 'torus:NU:NV:SEED' (NU, NV 3..4096, NU x NV <= 2^22; SEED >= 0)")
     if not cfg["meshes"] and not cfg["procedural"]:
         raise PlodError(f"config: no meshes (keys {where('meshes')} and {where('procedural')} are both empty)")
     if cfg["tree_method"] not in ("meshopt", "qem", "octree"):
         bad("tree_method", "'meshopt', 'qem' or 'octree'")
-    if not isinstance(cfg["views"], int) or cfg["views"] < 1:
+    if not isinstance(cfg["views"], int) or isinstance(cfg["views"], bool) or cfg["views"] < 1:
         bad("views", "an integer >= 1")
     if not isinstance(cfg["seed"], int) or isinstance(cfg["seed"], bool) or cfg["seed"] < 0:
         bad("seed", "an integer >= 0")
@@ -218,18 +218,18 @@ def check_config(cfg: dict, where: Callable[[str], str] = repr) -> dict:
     if not g or not all(_num(x) and 0 <= x < 80 for x in g):
         bad("gaze_offsets_deg", "a non-empty list of angles in [0, 80) deg")
     cfg["gaze_offsets_deg"] = [float(x) for x in g]
-    if not (math.isfinite(cfg["gaze_error_deg"]) and cfg["gaze_error_deg"] >= 0):
-        bad("gaze_error_deg", "a finite angle >= 0 deg")
+    if not (_num(cfg["gaze_error_deg"]) and 0 <= cfg["gaze_error_deg"] < 90):
+        bad("gaze_error_deg", "an angle in [0, 90) deg")
     lt = cfg["lightings"]
-    if not lt or len(set(lt)) != len(lt) or not all(x in ("relit", "baked") for x in lt):
+    if not lt or not all(isinstance(x, str) and x in ("relit", "baked") for x in lt) or len(set(lt)) != len(lt):
         bad("lightings", "a non-empty list of distinct 'relit', 'baked'")
     b = cfg["budgets"]
     ok = all((isinstance(x, float) and 0 < x <= 1) or (isinstance(x, int) and not isinstance(x, bool) and x >= 1)
              for x in b)
-    if not b or not ok or len(set(b)) != len(b):
+    if not b or not ok or len({(type(x), x) for x in b}) != len(b):  # 1 (a triangle) and 1.0 (all) differ
         bad("budgets", "a non-empty list of distinct fractions in (0, 1] (floats) or triangle counts >= 1 (integers)")
     m = cfg["methods"]
-    if not m or len(set(m)) != len(m) or not all(_method_ok(x) for x in m):
+    if not m or not all(_method_ok(x) for x in m) or len(set(m)) != len(m):
         bad("methods", "a non-empty list of distinct imperceptible, perceptual, size, geometric, meshoptimizer, "
                        "fast_simplification, model:NAME or PATH.json")
     for x in m:
@@ -239,12 +239,12 @@ def check_config(cfg: dict, where: Callable[[str], str] = repr) -> dict:
             except (PlodError, FileNotFoundError) as exc:
                 raise PlodError(f"config key {where('methods')}: {x!r}: {exc}") from None
     j = cfg["judges"]
-    if not j or len(set(j)) != len(j) or not all(x in JUDGES for x in j):
+    if not j or not all(isinstance(x, str) and x in JUDGES for x in j) or len(set(j)) != len(j):
         bad("judges", f"a non-empty list of distinct {', '.join(JUDGES)}")
     s = cfg["judge_size"]
-    if len(s) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 16 for x in s):
-        bad("judge_size", "two integers >= 16 (width, height in pixels)")
-    if not isinstance(cfg["examples"], int) or cfg["examples"] < 0:
+    if len(s) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and 16 <= x <= 8192 for x in s):
+        bad("judge_size", "two integers in 16..8192 (width, height in pixels)")
+    if not isinstance(cfg["examples"], int) or isinstance(cfg["examples"], bool) or cfg["examples"] < 0:
         bad("examples", "an integer >= 0")
     return cfg
 
@@ -256,9 +256,11 @@ def _parse_procedural(spec: str):
         nums = [int(x) for x in nums]
     except ValueError:
         return None
+    if not nums or nums[-1] < 0:  # the seed
+        return None
     if kind == "sphere" and len(nums) == 2 and 0 <= nums[0] <= 8:
         return kind, nums
-    if kind == "torus" and len(nums) == 3 and nums[0] >= 3 and nums[1] >= 3:
+    if kind == "torus" and len(nums) == 3 and 3 <= nums[0] <= 4096 and 3 <= nums[1] <= 4096 and nums[0] * nums[1] <= 1 << 22:
         return kind, nums
     return None
 
@@ -331,7 +333,10 @@ def skipped_meshes(cfg: dict) -> list[str]:
 
 
 def _budget_label(b) -> str:
-    return "-" if b is None else (f"{b:g}" if isinstance(b, float) else str(int(b)))
+    """A budget as the rows show it: a fraction with its point (1.0, the whole mesh, is not 1 triangle)."""
+    if b is None:
+        return "-"
+    return (f"{b:.1f}" if float(b).is_integer() else f"{b:g}") if isinstance(b, float) else str(int(b))
 
 
 def _model_spec(method: str) -> str:
@@ -357,6 +362,12 @@ def cells(cfg: dict, *, git_sha: str = "unknown") -> list[dict]:
                                         "direction": [float(x) for x in d], "gaze_deg": float(g),
                                         "lighting": lighting, "budget": b, "method": method, "label": label,
                                         "settings": settings, "git_sha": git_sha})
+    seen = {}
+    for t in out:  # rows are keyed by id: two cells of one id would keep one row and drop the other silently
+        if t["cell"] in seen:
+            raise PlodError(f"config: two cells would share the id {t['cell']!r} (gaze offsets or budgets equal to "
+                            "6 significant digits, or two model files of one name); make them distinct")
+        seen[t["cell"]] = True
     return out
 
 
@@ -547,14 +558,26 @@ def _read_journal(path: Path) -> list[dict]:
     rows = []
     if not path.is_file():
         return rows
-    for line in path.read_text(encoding="utf-8").splitlines(keepends=True):
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines(keepends=True):
         if not line.endswith("\n"):
             break
         try:
-            rows.append(json.loads(line))
+            row = json.loads(line)
         except json.JSONDecodeError:
             continue
+        if isinstance(row, dict) and isinstance(row.get("cell"), str) and isinstance(row.get("index"), int):
+            rows.append(row)  # anything else is not a row of ours (a damaged line): its cell runs again
     return rows
+
+
+def _saved_sweep(saved: Path):
+    """The sweep recorded in ``saved`` (experiment.json), or PlodError naming the file."""
+    try:
+        doc = json.loads(saved.read_text(encoding="utf-8"))
+        return doc["sweep"]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, IndexError):
+        raise PlodError(f"--resume: {saved} is not a sweep record of plod experiment (damaged?); use another "
+                        "--out or run without --resume") from None
 
 
 def _sweep_config(cfg: dict) -> dict:
@@ -656,17 +679,23 @@ def run_experiment(cfg: dict, *, out: str | Path | None = None, workers: int = 1
     """
     from experiments._runinfo import git_sha
 
-    out = repo_path(out if out is not None else cfg["out"])
+    out = check_out_dir(repo_path(out if out is not None else cfg["out"]))
     if not isinstance(workers, int) or workers < 0:
         raise PlodError(f"--workers must be an integer >= 0, got {workers!r}")
     if out.exists() and not out.is_dir():
         raise PlodError(f"--out {str(out)!r} is a file; give a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    # every cell (its meshes found, its id unique) before anything in ``out`` is touched: a config error
+    # must not empty the journal of the run already there
+    tasks = cells(cfg, git_sha=git_sha())
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PlodError(f"--out {str(out)!r}: cannot make the folder ({exc.strerror or exc})") from None
     journal, saved = out / "results.jsonl", out / "experiment.json"
     sweep = _sweep_config(cfg)
     done: dict[str, dict] = {}
     if resume and journal.exists():
-        if saved.is_file() and json.loads(saved.read_text())["sweep"] != sweep:
+        if saved.is_file() and _saved_sweep(saved) != sweep:
             raise PlodError(f"--resume: the config's sweep differs from the one in {saved}; use another --out "
                             "or run without --resume")
         rows = _read_journal(journal)
@@ -676,7 +705,6 @@ def run_experiment(cfg: dict, *, out: str | Path | None = None, workers: int = 1
     else:
         atomic_write_text(journal, "")
     atomic_write_text(saved, json.dumps({"sweep": sweep}, indent=1) + "\n")
-    tasks = cells(cfg, git_sha=git_sha())
     ids = {t["cell"] for t in tasks}
     done = {k: v for k, v in done.items() if k in ids}
     todo = [t for t in tasks if t["cell"] not in done]

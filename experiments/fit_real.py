@@ -606,6 +606,42 @@ def _progress_bar(console):
     return Progress(*columns, console=console)
 
 
+def check_config(cfg: dict) -> dict:
+    """The values the run reads, checked before any fit (PlodError naming the key): before, ``models = []``
+    ran every fit and the MCMC, then crashed writing the report (StopIteration), and a bad ``mcmc`` value
+    was found only after every least-squares fit."""
+    from pmetric import PlodError, make_model
+
+    def bad(key, want, got):
+        raise PlodError(f"fit_real: config key {key!r} must be {want}, got {got!r}")
+
+    def whole(x, lo):
+        return isinstance(x, int) and not isinstance(x, bool) and x >= lo
+
+    m = cfg["models"]
+    if not m or not all(isinstance(x, str) for x in m) or len(set(m)) != len(m):
+        bad("models", "a non-empty list of distinct model names (plod models lists them)", m)
+    for name in m:
+        make_model(name)  # an unknown name: PlodError naming it
+    mc = cfg["mcmc"]
+    if mc.get("data") not in ("modelfest", "achromatic"):
+        bad("mcmc.data", "'modelfest' or 'achromatic'", mc.get("data"))
+    if not isinstance(mc.get("model"), str):
+        bad("mcmc.model", "a model name", mc.get("model"))
+    make_model(mc["model"])
+    if not whole(mc.get("nwalkers"), 2):
+        bad("mcmc.nwalkers", "an integer >= 2", mc.get("nwalkers"))
+    if not whole(mc.get("nsteps"), 3):
+        bad("mcmc.nsteps", "an integer >= 3", mc.get("nsteps"))
+    q = mc.get("q")
+    if not (isinstance(q, (int, float)) and not isinstance(q, bool) and 0 < q < 1):
+        bad("mcmc.q", "a probability in (0, 1)", q)
+    grid = cfg["cv"].get("prior_grid", [])
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0 for x in grid):
+        bad("cv.prior_grid", "a list of prior strengths >= 0", grid)
+    return cfg
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--config", default=None, help="TOML of overrides (e.g. configs/fit_real.toml)")
@@ -616,7 +652,7 @@ def main(argv=None) -> int:
     from experiments._runinfo import load_config, save_run_info
     from pmetric import PlodError, atomic_write_text, make_model
 
-    cfg = load_config(args.config, DEFAULTS)
+    cfg = check_config(load_config(args.config, DEFAULTS))
     unknown = [k for k in cfg["observer_fields"] if k not in DEFAULTS["observer_fields"]]
     if unknown:  # pragma: no cover - load_config rejects them already
         raise PlodError(f"unknown observer_fields keys {unknown}")

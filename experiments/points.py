@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 import time
@@ -35,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, save_run_info
+from experiments._runinfo import check_out_dir, load_config, repo_path, save_run_info
 from experiments.accuracy import IMPERCEPTIBLE_TARGET as IMPERCEPTIBLE_JOD
 from pmetric import PlodError, atomic_write_text
 
@@ -72,6 +73,15 @@ def _check_sets(cfg) -> list[dict]:
             raise PlodError(f"config: {k!r} has {len(cfg[k])} entries, 'paths' has {n}; give one per point set")
     if not cfg["object_deg"]:
         raise PlodError("config: 'object_deg' must list at least one object size (deg)")
+    slugs = [_slug(str(x)) for x in cfg["names"]]
+    if len(set(slugs)) != len(slugs):  # figures are named by slug: one would overwrite the other
+        raise PlodError(f"config: 'names' must differ before their first ' (' and in their letters and digits "
+                        f"(they name the figures), got {cfg['names']!r}")
+    for key in ("gaze_deg", *(["curve_gaze_deg"] if "curve_gaze_deg" in cfg else [])):
+        vals = cfg[key] if isinstance(cfg[key], list) else [cfg[key]]
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and 0 <= x < 80
+                   for x in vals):
+            raise PlodError(f"config key {key!r} must be angles in [0, 80) deg from the centre, got {cfg[key]!r}")
     return [dict(zip(keys, row)) for row in zip(*(cfg[k] for k in keys))]
 
 
@@ -404,7 +414,8 @@ def main(argv=None) -> int:
         cfg["out"] = args.out
     if args.no_judge:
         cfg["judge"] = False
-    out = repo_path(cfg["out"])
+    _check_sets(cfg)  # before the folder is made (run checks again: it is also called without main)
+    out = check_out_dir(repo_path(cfg["out"]))
     if out.exists() and not out.is_dir():
         raise PlodError(f"--out {str(out)!r} is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)

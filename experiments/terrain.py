@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, run_script, save_run_info
+from experiments._runinfo import check_out_dir, load_config, repo_path, run_script, save_run_info
 from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal_heightfield, refine_terrain)
 from pmetric import PlodError, atomic_write_text
 
@@ -163,7 +163,7 @@ def run_config(path, out=None, progress=None) -> Path:
         raise PlodError(f"terrain: config kind must be 'terrain', got {cfg['kind']!r}")
     check_config(cfg)
     fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
-    out = Path(out or repo_path(cfg["out"]))
+    out = check_out_dir(Path(out or repo_path(cfg["out"])))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])
     lines = [f"# Seed 000 Table 1 and Figure 4 (Reddy's perceptual terrain LOD)", "",

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import load_config, repo_path, run_script, save_run_info
+from experiments._runinfo import check_out_dir, load_config, repo_path, run_script, save_run_info
 from experiments.terrain import DEFAULTS as TERRAIN_DEFAULTS
 from experiments.terrain import (FLIGHT, check_config, check_flight, config_main, flight_cameras, load_terrains,
                                  mean_angular_velocity, named_criteria, terrain_view)
@@ -120,7 +120,7 @@ def run_config(path, out=None, progress=None) -> Path:
     except ImportError:
         raise PlodError("terrain_motion: the judge extra is missing (pip install -e '.[judge]')") from None
     fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
-    out = Path(out or repo_path(cfg["out"]))
+    out = check_out_dir(Path(out or repo_path(cfg["out"])))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])
     ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi

@@ -46,8 +46,33 @@ def test_config_errors(tmp_path):
     with pytest.raises(PlodError, match="unknown config key 'orbit'"):
         run_config(p)
     p.write_text('kind = "terrain"\n')
-    with pytest.raises(PlodError, match="kind must be 'accuracy_motion'"):
+    with pytest.raises(PlodError, match="'kind' must be 'accuracy_motion'"):
         run_config(p)
+
+
+@pytest.mark.parametrize("line, key", [
+    ("budget = -5.0", "budget"), ("budget = 50.0", "budget"), ("budget = nan", "budget"),
+    ("gaze_offsets_deg = [1000.0]", "gaze_offsets_deg"), ("gaze_offsets_deg = []", "gaze_offsets_deg"),
+    ("gaze_offsets_deg = [1.0, 1.0]", "gaze_offsets_deg"), ("size = [64]", "size"), ('size = ["a", "b"]', "size"),
+    ("size = [3, 3]", "size"), ("frames = 1", "frames"), ("fps = 0.0", "fps"), ("orbit_deg_s = inf", "orbit_deg_s"),
+    ("still_every = 0", "still_every"), ('procedural = ["sphere:2:-1"]', "procedural"),
+])
+def test_config_values_checked_before_any_work(tmp_path, line, key):
+    """Every value is checked on loading, naming the key, before a mesh is loaded or the journal of the run
+    already in ``out`` is touched (before: a budget of -5 or a gaze of 1000 deg ran; a bad size or frame
+    count failed after the trees were built, with "not enough values to unpack" or "min() arg is an empty
+    sequence", and after the old journal had been emptied)."""
+    from experiments.accuracy_motion import run_config
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.jsonl").write_text('{"old": 1}\n')
+    p = tmp_path / "c.toml"
+    p.write_text(f'kind = "accuracy_motion"\nout = "{out}"\n{line}\n')
+    with pytest.raises(PlodError, match=f"config key '{key}' must be") as exc:
+        run_config(p)
+    assert "\n" not in str(exc.value)
+    assert (out / "results.jsonl").read_text() == '{"old": 1}\n'
 
 
 def test_short_orbit_judged(tmp_path):

@@ -122,3 +122,10 @@ def test_demo_rejects_bad_options(capsys, tmp_path):
     f.write_text("x")
     assert main(["demo", "--out", str(f)]) == 2
     assert "is a file" in capsys.readouterr().err
+    assert main(["demo", "--out", str(f / "x")]) == 2  # below a file: before, NotADirectoryError's traceback
+    err = capsys.readouterr().err
+    assert "Not a directory" in err and err.count("\n") == 1
+    # a budget below the smallest non-empty cut (before: 0-triangle cuts judged and reported)
+    assert main(["demo", "--subdivisions", "1", "--budget-fraction", "0.001", "--no-judge"]) == 2
+    err = capsys.readouterr().err
+    assert "below the smallest non-empty cut" in err and err.count("\n") == 1

@@ -69,12 +69,84 @@ def test_unknown_key_names_the_key_and_its_line(tmp_path):
     ('views = 1\nseed = -1\n', "seed", 2),
     ('procedural = ["cube:3"]\n', "procedural", 1),
     ('meshes = ["no/such/mesh.ply"]\n', "meshes", None),
+    # found by fuzzing (2026-12-06): a traceback (unhashable nested lists), runs that should not start
+    ('lightings = [[1]]\n', "lightings", 1),
+    ('methods = [[1]]\n', "methods", 1),
+    ('judges = [{a = 1}]\n', "judges", 1),
+    ('procedural = ["sphere:2:-1"]\n', "procedural", 1),
+    ('procedural = ["torus:200000:200000:0"]\n', "procedural", 1),
+    ('gaze_error_deg = 1e300\n', "gaze_error_deg", 1),
+    ('views = true\n', "views", 1),
+    ('judge_size = [40000, 16]\n', "judge_size", 1),
 ])
 def test_bad_values_name_the_key_and_line(tmp_path, text, key, line):
     p = _cfg(tmp_path, text)
     pat = rf"config key '{key}'" + (rf" \(.*line {line}\)" if line else "")
     with pytest.raises(ValueError, match=pat):
         E.cells(E.load_experiment_config(p))
+
+
+@pytest.mark.parametrize("line", ["gaze_offsets_deg = [1.0, 1.0000001]", "gaze_offsets_deg = [0.0, 0]",
+                                  "budgets = [0.5, 0.5000001]"])
+def test_cells_of_one_id_are_refused(tmp_path, line):
+    """Rows are keyed by cell id: two cells of one id kept one row and dropped the other silently."""
+    p = _cfg(tmp_path, TINY.replace("gaze_offsets_deg = [0.0, 12.0]", "").replace("budgets = [0.1, 300]", "")
+             + line + "\n")
+    with pytest.raises(ValueError, match="two cells would share the id"):
+        E.cells(E.load_experiment_config(p))
+
+
+def test_one_triangle_and_the_whole_mesh_are_distinct_budgets(tmp_path):
+    cfg = E.load_experiment_config(_cfg(tmp_path, TINY.replace("budgets = [0.1, 300]", "budgets = [1, 1.0]")))
+    assert {c["budget"] for c in E.cells(cfg) if c["budget"] is not None} == {1, 1.0} and len(E.cells(cfg)) == 22
+
+
+def test_a_config_error_leaves_the_last_run_untouched(tmp_path, reference):
+    """A config that cannot run (a mesh file not found) is refused before the output folder is touched: the
+    last run's journal and sweep record stay as they were (before: the journal was emptied and the record
+    replaced by the new sweep's, so a later --resume checked against the wrong sweep)."""
+    import shutil
+
+    _, _, ref_out = reference
+    out = tmp_path / "keep"
+    shutil.copytree(ref_out, out)
+    before = {n: (out / n).read_bytes() for n in ("results.jsonl", "experiment.json")}
+    cfg = E.load_experiment_config(_cfg(tmp_path, TINY + 'meshes = ["typo.ply"]\n'))
+    with pytest.raises(ValueError, match="'meshes'.*not found"):
+        E.run_experiment(cfg, out=out, workers=0)
+    assert {n: (out / n).read_bytes() for n in before} == before
+
+
+@pytest.mark.parametrize("damage", ["{}", "[1]", "not json"])
+def test_resume_with_a_damaged_sweep_record_is_one_line(tmp_path, reference, damage):
+    import shutil
+
+    cfg, _, ref_out = reference
+    out = tmp_path / "damaged"
+    shutil.copytree(ref_out, out)
+    (out / "experiment.json").write_text(damage)
+    with pytest.raises(ValueError, match="is not a sweep record of plod experiment"):
+        E.run_experiment(cfg, out=out, workers=0, resume=True)
+
+
+def test_resume_skips_journal_lines_that_are_not_rows(tmp_path, reference):
+    """A damaged journal line (not a row of ours) is dropped and its cell runs again (before: AttributeError)."""
+    import shutil
+
+    cfg, ref_rows, ref_out = reference
+    out = tmp_path / "lines"
+    shutil.copytree(ref_out, out)
+    lines = (out / "results.jsonl").read_text().splitlines(keepends=True)
+    (out / "results.jsonl").write_text("5\n" + "".join(lines[1:]) + '"text"\n')
+    rows = E.run_experiment(cfg, out=out, workers=0, resume=True)
+    assert E.strip_volatile(rows) == E.strip_volatile(ref_rows)
+
+
+@pytest.mark.parametrize("out", ["", "."])
+def test_the_repository_root_is_not_an_output_folder(tmp_path, out):
+    cfg = E.load_experiment_config(_cfg(tmp_path))
+    with pytest.raises(ValueError, match="empty|repository root"):
+        E.run_experiment(cfg, out=out, workers=0)
 
 
 def test_a_config_overrides_its_base(tmp_path):
@@ -286,6 +358,34 @@ def test_cli_writes_the_report(tmp_path, monkeypatch, capsys):
     assert cli.main(["experiment", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "unknown config key 'workerz'" in err and "line 2" in err
+    # an --out below a file: one line (before: NotADirectoryError's traceback)
+    assert cli.main(["experiment", str(p), "--workers", "0", "--out", str(p / "sub")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Not a directory" in err
+    # flags a config of another kind does not take: refused, not ignored (--resume ran everything again)
+    kind = _cfg(tmp_path, 'kind = "accuracy_motion"\n', "kind.toml")
+    for flag in (["--resume"], ["--workers", "3"], ["--scheduler", "tcp://127.0.0.1:1"], ["--no-examples"]):
+        assert cli.main(["experiment", str(kind), *flag]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and f"{flag[0]} does not apply to a config of kind 'accuracy_motion'" in err
+
+
+def test_cli_exits_1_when_a_cell_failed(tmp_path, monkeypatch, capsys):
+    """A failed cell is recorded and the sweep goes on, but the command's status says so (before: exit 0,
+    the reason only in the table): a garbage mesh file, one line naming the cell and the reason."""
+    from experiments import cli
+
+    monkeypatch.setattr(cli, "COMMANDS", [*cli.COMMANDS, "experiment"] if "experiment" not in cli.COMMANDS
+                        else cli.COMMANDS)
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"\x00\x01 not a mesh")
+    p = _cfg(tmp_path, f'meshes = ["{garbage}"]\nprocedural = []\nviews = 1\ngaze_offsets_deg = [0.0]\n'
+                       'budgets = [0.5]\nmethods = ["perceptual"]\njudges = ["distance"]\nexamples = 0\n')
+    assert cli.main(["experiment", str(p), "--workers", "0", "--out", str(tmp_path / "out")]) == 1
+    cap = capsys.readouterr()
+    assert "1 failed" in cap.out
+    last = cap.err.strip().splitlines()[-1]  # (the lines above: one progress line per cell, not a terminal)
+    assert "1 of 1 cells failed; first: garbage/v0/g0/" in last and "garbage.ply" in last
 
 
 def test_small_config_end_to_end(tmp_path):

@@ -85,3 +85,38 @@ def test_experiment_scripts_reject_unknown_config_keys(tmp_path):
                               text=True, timeout=300)
         assert proc.returncode == 2, (module, proc.stderr)
         assert "unknown config key 'not_a_key'" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("text, key", [
+    ("models = []", "models"),  # before: every fit and the MCMC ran, then StopIteration writing the report
+    ('[mcmc]\ndata = "bogus"', "mcmc.data"),
+    ("[mcmc]\nq = 2.0", "mcmc.q"),
+    ("[mcmc]\nnwalkers = 0", "mcmc.nwalkers"),
+    ("[mcmc]\nnsteps = 0", "mcmc.nsteps"),
+    ("[cv]\nprior_grid = [-1.0]", "cv.prior_grid"),
+])
+def test_fit_real_checks_its_values_before_any_fit(text, key, tmp_path):
+    from experiments._runinfo import load_config
+    from experiments.fit_real import DEFAULTS, check_config
+
+    p = tmp_path / "c.toml"
+    p.write_text(text + "\n")
+    with pytest.raises(ValueError, match=f"config key '{key}' must be"):
+        check_config(load_config(p, DEFAULTS))
+    check_config(load_config(None, DEFAULTS))  # the defaults pass
+
+
+@pytest.mark.parametrize("override, msg", [
+    ({"names": ["s (a)", "s (b)"]}, "'names' must differ"),  # both figures were s_10deg.png
+    ({"gaze_deg": 1000.0}, "'gaze_deg' must be angles in"),
+    ({"curve_gaze_deg": [0.0, -5.0]}, "'curve_gaze_deg' must be angles in"),
+])
+def test_points_config_values(override, msg):
+    from experiments import points as P
+
+    cfg = {**P.DEFAULTS, **P.QUICK, **override}
+    if "names" in override:
+        for k in ("paths", "point_cloud", "directions", "ups"):
+            cfg[k] = cfg[k] * 2
+    with pytest.raises(ValueError, match=msg):
+        P._check_sets(cfg)

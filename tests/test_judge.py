@@ -139,12 +139,20 @@ def test_plod_judge_cli(tmp_path, capsys, vdp):
     assert res["lighting"]["ambient"] == 0.2 and res["lighting"]["diffuse"] == pytest.approx(0.8)
     assert res["view"]["size"] == [128, 72] and res["view"]["fixation_px"][0] > 64
     for bad, what in ((["--light", "1,2"], "--light"), (["--out", str(tmp_path / "x.jpg")], "--out"),
-                      (["--size", "0,5"], "--size")):
+                      (["--size", "0,5"], "--size"),
+                      (["--size", "64,3"], "--size"),  # FovVideoVDP's AttributeError traceback below 4 pixels
+                      (["--object-deg", "1e-300"], "--object-deg")):
         assert main(["judge", str(a), str(b), *bad]) == 2
         err = capsys.readouterr().err
         assert what in err and err.count("\n") == 1
     assert main(["judge", str(a), str(tmp_path / "missing.ply")]) == 2
     assert "not found" in capsys.readouterr().err
+    # an original without extent frames nothing (before: framed with a radius of 1 and scored)
+    dot = tmp_path / "dot.ply"
+    optim.save_mesh(dot, np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    assert main(["judge", str(dot), str(b)]) == 2
+    err = capsys.readouterr().err
+    assert "all vertices coincide" in err and err.count("\n") == 1
 
 
 def test_plod_judge_shades_from_the_normals_a_file_carries(tmp_path, capsys, vdp):
