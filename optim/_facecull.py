@@ -132,11 +132,10 @@ def _finish(tree, bnd, fb, keep, rep, n, away, normals="faces"):
 def _without_back_faces(v, f, c, n, away, normals=None):
     """The mesh ``(v, f, c)`` without its faces flagged ``away``, and ``normals``, or when None the unit
     vertex normals of all its faces from their normal columns ``n`` (the tail of :func:`drop_back_faces`)."""
-    from ._normal_cube import _unit
-    from ._tree import _vertex_normals
+    from ._normals import face_vertex_normals
 
     if normals is None:
-        normals = _unit(_vertex_normals(v, f, np.column_stack(n)))
+        normals = face_vertex_normals(v, f, np.column_stack(n))
     return v, f[~away], c, normals
 
 

@@ -65,19 +65,47 @@ def _build_region_normals(tree) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def face_vertex_normals(vertices, faces, fn=None) -> np.ndarray:
+    """(V, 3) float64 unit area-weighted vertex normals of a mesh from its own faces (``fn``: the faces'
+    unnormalised normals (T, 3), when already made). Where a vertex's face normals cancel (a sheet drawn
+    from both sides: a coarse cut of a closed surface may keep a triangle in both windings) the vertex
+    takes the unit normal of its largest face instead of the zero vector the sum gives; 0 only for a
+    vertex on no face of nonzero area."""
+    from ._mesh import face_normals
+    from ._normal_cube import _unit
+    from ._tree import _vertex_normals
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces)
+    if fn is None:
+        fn = face_normals(v, f)
+    out = _unit(_vertex_normals(v, f, fn))
+    zero = ~out.any(axis=1)
+    if zero.any() and len(f):
+        area = np.einsum("ij,ij->i", fn, fn)
+        touch = np.flatnonzero(zero[f].any(axis=1) & (area > 0))  # the few faces at such vertices
+        if touch.size:
+            order = touch[np.argsort(area[touch], kind="stable")]  # ascending: the largest face written last
+            best = np.full(len(v), -1)
+            for t in order:  # ascending area: each such vertex ends with its largest face
+                for c in f[t]:
+                    if zero[c]:
+                        best[c] = t
+            have = np.flatnonzero(best >= 0)
+            out[have] = _unit(fn[best[have]])
+    return out
+
+
 def cut_normals(tree, vertices, faces, nodes, normals: str, rows=None) -> np.ndarray:
     """(V', 3) float64 unit vertex normals of a cut's mesh ``(vertices, faces)`` whose vertex ``i`` is
     drawn for node ``nodes[i]``: ``"region"`` (:func:`region_normals`, the faces' normal where the region
     has none) or ``"faces"`` (area-weighted over ``faces``; 0 for a vertex no face uses). ``rows``: the
     nodes' rows of :func:`region_normals` when already gathered."""
-    from ._normal_cube import _unit
-    from ._tree import _vertex_normals
-
     if normals is None or check_normals(normals, "cut_normals") is None:
         raise PlodError(f"cut_normals: normals must be 'region' or 'faces', got {normals!r}")
     v = np.asarray(vertices, np.float64)
     if normals == "faces":
-        return _unit(_vertex_normals(v, np.asarray(faces)))
+        return face_vertex_normals(v, faces)
     from ._cut import _take_rows
 
     if rows is None:  # a caller's nodes (extract passes the rows it gathered): checked
@@ -89,5 +117,5 @@ def cut_normals(tree, vertices, faces, nodes, normals: str, rows=None) -> np.nda
     out = rows.astype(np.float64)
     none = ~rows.view(np.uint32).any(axis=1)  # a zero row: its 3 words are 0 (-0.0 cannot arise from the division)
     if none.any():
-        out[none] = _unit(_vertex_normals(v, np.asarray(faces)))[none]
+        out[none] = face_vertex_normals(v, faces)[none]
     return out

@@ -164,3 +164,29 @@ def test_carried_normals_are_unit_at_any_scale(seed, exp, budget, method):
             assert np.all((np.abs(length - 1) < 1e-6) | (length == 0))
             got.append(nn)
         np.testing.assert_allclose(got[0], got[1], atol=1e-5)
+
+
+def test_faces_normals_are_unit_where_a_sheet_cancels():
+    """A coarse cut of a closed surface can keep one triangle in both windings: the area-weighted sum at its
+    vertices is 0, and extract / drop_back_faces returned zero 'unit' normals (found by property fuzzing).
+    Such a vertex takes its largest face's normal; elsewhere the normals are the area-weighted ones."""
+    from optim._normals import face_vertex_normals
+
+    v, f = optim.bumpy_sphere(0, seed=0)
+    tree = optim.build_tree(v, f)
+    view = optim.View.framing(v, 30.0)
+    cut = optim.budget_cut(tree, optim.score(tree, view), 2)
+    V, F, _, N = optim.extract(tree, cut, normals="faces")
+    assert len(F) == 2 and sorted(F[0]) == sorted(F[1])  # the sandwich
+    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0)
+    fn = np.cross(V[F[0, 1]] - V[F[0, 0]], V[F[0, 2]] - V[F[0, 0]])
+    np.testing.assert_allclose(np.abs(N @ (fn / np.linalg.norm(fn))), 1.0)  # the sheet's own normal (either side)
+    np.testing.assert_allclose(np.linalg.norm(optim.drop_back_faces(optim.extract(tree, cut), view)[3], axis=1), 1.0)
+    # a mesh with no cancelling vertex: the plain area-weighted unit normals
+    v2, f2 = optim.bumpy_sphere(1, seed=3)
+    fn2 = np.cross(v2[f2[:, 1]] - v2[f2[:, 0]], v2[f2[:, 2]] - v2[f2[:, 0]])
+    ref = np.zeros_like(v2)
+    for c in range(3):
+        np.add.at(ref, f2[:, c], fn2)
+    np.testing.assert_allclose(face_vertex_normals(v2, f2), ref / np.linalg.norm(ref, axis=1, keepdims=True),
+                               atol=1e-12)
