@@ -103,6 +103,8 @@ def run(args) -> int:
                 raise PlodError(f"{flag} applies to --method staircase only; the fade-in method has no {flag[2:]}")
     rule = "3down1up" if args.rule is None else args.rule
     trials = 80 if args.trials is None else args.trials
+    if not 2 <= trials <= 100_000:  # a Python loop per trial: 1e9 trials ran for hours without a word
+        raise PlodError(f"--trials must be in 2..100000, got {trials}")
     if args.observer_seed < 0:
         raise PlodError(f"--observer-seed must be >= 0, got {args.observer_seed}")
     check_output("--out", args.out, suffixes=(".csv",), inputs=(args.model_file, args.model))
@@ -122,7 +124,12 @@ def run(args) -> int:
             parts.append(staircase_2afc(observer, stimuli, rule=rule, trials=trials))
     data = CalibrationData.concatenate(parts)
     if len(data) == 0:
-        raise PlodError("no grating of the grid was visible to the simulated observer; nothing written")
+        c_t = np.asarray(observer.threshold(stimuli), np.float64)
+        if np.all(c_t >= 1.0):
+            raise PlodError("no grating of the grid was visible to the simulated observer; nothing written")
+        raise PlodError(f"no threshold of the grid could be measured by --method {args.method} (the model's "
+                        f"thresholds span {np.nanmin(c_t):.3g}..{np.nanmax(c_t):.3g} in Michelson contrast, "
+                        "beyond what the method measures); nothing written")
     data.to_csv(out)  # CalibrationData.to_csv writes atomically
     print(f"wrote {len(data)} of {len(stimuli) * args.repeats} simulated thresholds "
           f"({args.method}, {type(model).__name__}, seed {args.observer_seed}) to {out}")

@@ -25,7 +25,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from experiments._paths import check_output
+from experiments._paths import check_output, model_files
 from pmetric import PlodError, make_model
 
 # emcee's autocorrelation estimate needs >= 3 kept steps per walker (nsteps 1, 2: NaN, cryptic error)
@@ -82,7 +82,7 @@ def run(args) -> int:
     data_path = Path(args.data)
     if args.out is not None:
         check_output("--out", args.out, suffixes=(".json",),
-                     inputs=(("the input data", data_path), ("the input model", args.model)))
+                     inputs=(("the input data", data_path), *(("the input model", m) for m in model_files(args.model))))
     if args.method == "mcmc":
         if args.nsteps < MIN_MCMC_STEPS:
             raise PlodError(f"--nsteps must be >= {MIN_MCMC_STEPS} for --method mcmc (the sampler needs "
@@ -149,7 +149,7 @@ def run(args) -> int:
             row_rules=res.row_rules, rmse_db=res.rmse_db, rmse_log10=res.rmse_log10,
             rmse_per_dataset_db=res.rmse_per_dataset, multipliers=res.multipliers,
             identifiable=res.identifiable,
-            params={n: {"value": float(v), "stderr": float(s)}
+            params={n: {"value": float(v), "stderr": float(s) if np.isfinite(s) else None}  # null: not determined
                     for n, v, s in zip(res.param_names, res.values, res.stderr)},
         )
         text = res.summary()

@@ -26,6 +26,21 @@ def _same(a: Path, b: Path) -> bool:
     return a.resolve() == b.resolve()
 
 
+def model_files(spec) -> list[Path]:
+    """The existing files a model spec reads: the spec itself, or the files inside a composition
+    (``"eccentric( a.json )"``: ``a.json``), stripped as ``pmetric.make_model`` strips them, so that an
+    output check sees every input a spec names (before, a wrapped or space-padded path slipped past it)."""
+    if spec is None:
+        return []
+    text = str(spec)
+    out = []
+    for token in [text, *text.replace("(", ",").replace(")", ",").split(",")]:
+        q = Path(token.strip())
+        if token.strip() and q.is_file() and q not in out:
+            out.append(q)
+    return out
+
+
 def check_output(flag: str, path, *, suffixes: Iterable[str], inputs: Iterable = ()) -> Path:
     """``Path(path)`` once it is a writable output; else ``PlodError`` naming ``flag``.
 

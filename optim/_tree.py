@@ -377,12 +377,17 @@ class VertexTree:
             raise PlodError("tree: children are not contiguous (parent[1:] must be non-decreasing)")
         if not np.array_equal(np.bincount(p[1:], minlength=N), self.child_count):
             raise PlodError("tree: child_count disagrees with parent")
-        if self.subtri_start[-1] != T or not np.array_equal(np.sort(self.subtris), np.arange(T)):
+        st, sub = self.subtri_start, self.subtris
+        if st[0] != 0 or st[-1] != T or np.any(np.diff(st) < 0) or (T and (sub.min() < 0 or sub.max() >= T)) \
+                or not np.all(np.bincount(sub, minlength=T) == 1):  # each triangle once (O(T), no sort)
             raise PlodError("tree: subtris is not a partition of the triangles")
-        if not np.array_equal(self.tri_node[self.subtris], np.repeat(np.arange(N), self.num_subtris)):
+        if not np.array_equal(self.tri_node[sub], np.repeat(np.arange(N), self.num_subtris)):
             raise PlodError("tree: tri_node disagrees with subtris")
-        if self.vertex_node.shape != (V,) or np.any(self.child_count[self.vertex_node] != 0):
+        vn = self.vertex_node
+        if vn.shape != (V,) or (V and (vn.min() < 0 or vn.max() >= N)) or np.any(self.child_count[vn] != 0):
             raise PlodError("tree: vertex_node must point at leaves")
+        if T and (self.faces.min() < 0 or self.faces.max() >= V):
+            raise PlodError("tree: faces index vertices out of range")
 
 
 def load_tree(path: str | os.PathLike) -> VertexTree:
@@ -414,10 +419,15 @@ def load_tree(path: str | os.PathLike) -> VertexTree:
         if kw[k] is not None and kw[k].shape != shape:
             raise PlodError(f"{str(p)!r}: tree array {k!r} has shape {kw[k].shape}, expected {shape} (corrupt file?)")
     light = meta.get("lighting")
-    return VertexTree(**kw, method=meta.get("method", "octree"),
+    tree = VertexTree(**kw, method=meta.get("method", "octree"),
                       lighting=None if light is None else Lighting(**light),
                       mesh_report=meta.get("mesh_report", {}),
                       origin=_origin_array(meta.get("origin"), f"{str(p)!r}: tree file (corrupt?)"))
+    try:  # arrays of the right shapes may still not be a tree (a damaged or edited file): say so here
+        tree.check()
+    except (PlodError, IndexError, ValueError) as exc:
+        raise PlodError(f"{str(p)!r}: not a valid vertex tree ({exc}; corrupt file?)") from None
+    return tree
 
 
 def mesh_hash(vertices, faces, colors=None, method: str = "qem", lighting=None) -> str:

@@ -92,7 +92,7 @@ class Eccentric(CSFModel):
     def __init__(self, csf: CSFModel, magnification: RovamoVirsu | None = None):
         if not isinstance(csf, CSFModel):
             raise PlodError(f"Eccentric needs a CSFModel, got {type(csf).__name__}")
-        if "e" in type(csf).inputs:
+        if "e" in csf.inputs:  # (the instance: an Eccentric's inputs are a property)
             raise PlodError(f"{type(csf).__name__} already depends on eccentricity; wrap a foveal CSF")
         self.csf = csf
         self.magnification = RovamoVirsu() if magnification is None else magnification

@@ -124,6 +124,22 @@ def test_covariance_matches_scatter_over_seeds():
     assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
 
 
+def test_constants_the_rows_do_not_determine_have_no_uncertainty():
+    """Foveal rows only (e = 0) say nothing about ``drop`` (the eccentricity term): its standard error is
+    NaN and the fit is not identifiable (before: pinv's null space gave it "+- 0", a spuriously exact
+    value); the other constants keep their finite errors, as with rows across eccentricities."""
+    d = simulate(seed=2, noise=0.02)
+    fov = CalibrationData.from_arrays(np.asarray(d.f)[np.asarray(d.e) == 0],
+                                      log_threshold=np.asarray(d.log_threshold)[np.asarray(d.e) == 0], e=0.0,
+                                      dataset="d0", luminance=50.0, area=2.0)
+    res = optim.fit_least_squares(START, fov)
+    se = dict(zip(res.param_names, res.stderr))
+    assert np.isnan(se["drop"]) and all(np.isfinite(se[n]) and se[n] > 0 for n in ("gain", "f_peak", "width"))
+    assert not res.identifiable and "not identifiable from these rows: drop" in res.summary()
+    full = optim.fit_least_squares(START, d)
+    assert full.identifiable and np.all(full.stderr > 0)
+
+
 def test_bounds_respected_by_reparametrisation():
     # data generated with drop < 0 (outside its bounds (0, 1)): the fit stays inside, near the edge
     data = simulate(seed=1, noise=0.01, model=ToyCSF(**{**TRUE, "drop": -0.01}))

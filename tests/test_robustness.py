@@ -260,6 +260,9 @@ def test_cli_fit_refuses_its_own_model_and_non_json_outputs(capsys, cli_files):
     _cli_fails(capsys, cli_files, ["fit", c, "--model", m, "--out", m], "--out", "the input model", "overwrite")
     _cli_fails(capsys, cli_files, ["fit", c, "--model", "kellyabstract", "--out", c], "the input data")
     _cli_fails(capsys, cli_files, ["fit", c, "--model", "kellyabstract", "--out", d / "x.ply"], "--out", ".json")
+    # a model file inside a composition, or space-padded, is an input too (before: overwritten)
+    _cli_fails(capsys, cli_files, ["fit", c, "--model", f"eccentric( {m} )", "--out", m], "the input model")
+    _cli_fails(capsys, cli_files, ["fit", c, "--model", f" {m}", "--out", m], "the input model")
 
 
 @pytest.mark.parametrize("case", ["file-parent", "directory", "proc", "missing-folder", "suffix"])

@@ -98,6 +98,19 @@ def test_staircase_3down1up_converges_to_79_percent(model):
     assert np.median(np.log10(c79) - np.log10(c50)) > 0.02
 
 
+def test_gratings_seen_at_the_ramp_start_are_dropped(model):
+    """A grating visible at the fade-in's start contrast measures nothing (its row would record the start
+    contrast, censored): it is dropped, and the rows kept are exact (before: written as thresholds of
+    1e-3, biasing a refit)."""
+    st = stimulus_grid(np.logspace(-0.3, 1.3, 12), [0.0])
+    obs = SimulatedObserver(model, slope=math.inf, seed=3)
+    c_t = np.asarray(obs.threshold(st))
+    start = float(np.sqrt(c_t.min() * np.median(c_t)))  # some thresholds below the start, some above
+    d = fade_in_session(obs, st, rate_db_per_s=4.0, reaction_time_s=0.35, start_contrast=start)
+    assert 0 < len(d) == int((c_t > start).sum()) < len(st)
+    np.testing.assert_allclose(d.log_threshold, _true(obs, d), atol=1e-12)
+
+
 def test_invisible_gratings_are_dropped(model):
     st = stimulus_grid([4.0, 200.0])  # 200 cycles/deg is invisible at every contrast
     obs = SimulatedObserver(model, slope=math.inf)
@@ -156,6 +169,13 @@ def test_cli_errors(tmp_path, capsys):
     assert main(["calibrate", "--simulate", "--noise", "-1", "--out", str(out)]) == 2
     assert main(["calibrate", "--simulate", "--model", "barten", "--grid", "300x0", "--out", str(out)]) == 2
     assert "visible" in capsys.readouterr().err
+    # thresholds far below what the staircase measures: not "not visible" (the opposite of the truth)
+    assert main(["calibrate", "--simulate", "--model", "reddy", "--method", "staircase", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "could be measured by --method staircase" in err and "not visible" not in err
+    for trials in ("1", "1000000000"):  # 1e9 ran silently for hours
+        assert main(["calibrate", "--simulate", "--method", "staircase", "--trials", trials, "--out", str(out)]) == 2
+        assert "--trials must be in 2..100000" in capsys.readouterr().err
     assert not out.exists()
     if hasattr(pmetric, "save_model"):
         mf = tmp_path / "model.json"

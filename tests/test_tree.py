@@ -382,3 +382,19 @@ def test_load_tree_rejects_inconsistent_arrays(trees, tmp_path):
     np.savez(tmp_path / "bad.npz", **data)
     with pytest.raises(ValueError, match="radius.*corrupt"):
         optim.load_tree(tmp_path / "bad.npz")
+
+
+@pytest.mark.parametrize("edit", ["parent", "vertex_node", "subtris", "faces"])
+def test_load_tree_rejects_arrays_of_the_right_shape_that_are_no_tree(trees, tmp_path, edit):
+    """A file whose arrays have the right shapes but do not form a tree (a damaged or edited cache entry)
+    is a one-line PlodError naming the file (before: an IndexError traceback in the first score)."""
+    t = trees[("ico2", "octree")]
+    p = t.save(tmp_path / "t.npz")
+    with np.load(p) as z:
+        data = {k: z[k].copy() for k in z.files}
+    data[edit].flat[min(5, data[edit].size - 1)] = 10**6
+    np.savez(tmp_path / "bad.npz", **data)
+    with pytest.raises(ValueError, match=r"bad\.npz.*not a valid vertex tree") as exc:
+        optim.load_tree(tmp_path / "bad.npz")
+    assert "\n" not in str(exc.value)
+    optim.load_tree(p).check()  # the original file loads

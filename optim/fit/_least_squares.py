@@ -6,7 +6,8 @@ The residuals, the reparametrisation by ``param_bounds`` and the rows fitted are
 The covariance of the natural parameters is ``D (J^T J)^+ D^T s^2`` with ``J`` the Jacobian of the
 residuals in ``u``, ``s^2 = SSR / (n - p)`` and ``D = dx/du`` (the delta method through the
 reparametrisation). With ``n <= p`` rows the constants are not identifiable from the data: the
-covariance and standard errors are NaN (never a spuriously tiny number).
+covariance and standard errors are NaN (never a spuriously tiny number); so are those of a constant
+in a null direction of ``J^T J`` (eigenvalue under 1e-10 of the largest), which the rows do not determine.
 
 Regularisation (``prior_strength=lambda > 0``): a Gaussian prior on the fitted constants in the
 unconstrained coordinates ``u`` of ``optim.fit._problem``, centred on the starting model's constants
@@ -146,9 +147,17 @@ def _solve(theta0, fixed, arrays, st: ProblemStatic, solver: str, backend: str, 
     n, p = arrays.get("n_rows", n_data), theta.shape[0]
     # n <= p: not identifiable from the data; NaN, not SSR / 1 ~ 0 (a fit through p points)
     s2 = jnp.where(n > p, jnp.sum(rd * rd) / jnp.maximum(n - p, 1), jnp.nan)
-    cov_u = jnp.linalg.pinv(jac.T @ jac, hermitian=True) * s2
+    jtj = jac.T @ jac
+    cov_u = jnp.linalg.pinv(jtj, hermitian=True) * s2
     m = natural_jacobian(theta, st)
     cov = m @ cov_u @ m.T
+    # constants the rows do not determine (a zero or dependent column of J: e.g. eccentricity constants
+    # fitted to foveal rows only): pinv gives them 0 variance, a spuriously exact "+- 0"; NaN instead
+    w, vec = jnp.linalg.eigh(jtj)
+    null = w <= 1e-10 * jnp.maximum(w[-1], 1e-300)
+    dead_u = jnp.sum(jnp.where(null[None, :], vec * vec, 0.0), axis=1) > 1e-6
+    dead = (jnp.abs(m) > 0).astype(theta.dtype) @ dead_u.astype(theta.dtype) > 0
+    cov = jnp.where(dead[:, None] | dead[None, :], jnp.nan, cov)
     grad = jac.T @ r
     return theta, rd, cov, result, steps, jnp.max(jnp.abs(grad), initial=0.0)
 
@@ -178,7 +187,8 @@ class FitResult:
         loss at the optimum; theta: the optimum in the unconstrained (log / logit) coordinates;
         n_input_rows: rows of the input data (``n_dropped`` = those not fitted); prior_strength: the
         lambda of the prior (0: none). With ``n_rows <= p`` the covariance and stderr are NaN
-        (``identifiable`` is False).
+        (``identifiable`` is False); so are those of constants the rows do not determine (a null
+        direction of ``J^T J``, e.g. eccentricity constants fitted to foveal rows only).
     """
 
     model: Any
@@ -210,7 +220,8 @@ class FitResult:
 
     @property
     def identifiable(self) -> bool:
-        """More rows than free constants: the standard errors are defined (NaN otherwise)."""
+        """More rows than free constants, each determined by them: the standard errors are defined (NaN
+        otherwise)."""
         return bool(np.all(np.isfinite(self.stderr)))
 
     @property
@@ -226,9 +237,13 @@ class FitResult:
         lines = [f"{type(self.model).__name__}: RMSE {self.rmse_db:.3f} dB ({self.rmse_log10:.4f} log10) "
                  f"on {self.n_rows} rows; {self.solver}/{self.backend}: {self.result} after {self.steps} steps"
                  + (f"; prior strength {self.prior_strength:g}" if self.prior_strength else "")]
-        if not self.identifiable:
+        if not self.identifiable and self.n_rows <= len(self.values):
             lines.append(f"  not identifiable: {self.n_rows} rows for {len(self.values)} constants "
                          "(no uncertainty can be given)")
+        elif not self.identifiable:
+            dead = [n for n, se in zip(self.param_names, self.stderr) if not np.isfinite(se)]
+            lines.append(f"  not identifiable from these rows: {', '.join(dead)} (the data do not constrain "
+                         "them; no uncertainty can be given)")
         for name, v, se in zip(self.param_names, self.values, self.stderr):
             lines.append(f"  {name:<28} {v: .6g}" + (f"  +- {se:.3g}" if np.isfinite(se) else ""))
         return "\n".join(lines)

@@ -178,7 +178,8 @@ def fade_in_session(
 
     The verification click of [LH01 §6.1] is simulated: a genuine detection clicks the right one of
     ``positions`` grating positions; a lapse clicks at random, and rows with a wrong click are dropped,
-    as are gratings never detected up to ``max_contrast``. Returns ``CalibrationData`` (dataset
+    as are gratings never detected up to ``max_contrast`` and those detected at the ramp's start (a
+    threshold at or below ``start_contrast``, which the ramp cannot measure). Returns ``CalibrationData`` (dataset
     ``simulated_fade``) with the stimuli that remain.
     """
     if not (rate_db_per_s > 0 and math.isfinite(rate_db_per_s)):
@@ -206,8 +207,11 @@ def fade_in_session(
     rt = reaction_time_s + (reaction_sd_s * rng.standard_normal(n) if reaction_sd_s > 0 else 0.0)
     t_resp = t_det + np.maximum(rt, 0.0)
     seen = t_det <= t_end
+    # a grating seen as the ramp starts (threshold at or below start_contrast) measures nothing: its
+    # response would record the start contrast, not a threshold (a censored row)
+    censored = ~lapse & (np.log10(c_det) <= math.log10(start_contrast))
     verified = ~lapse | (rng.integers(0, int(positions), n) == 0)
-    keep = seen & verified
+    keep = seen & verified & ~censored
     if frame_rate is not None:
         t_shown = np.floor(t_resp * frame_rate + 1e-9) / frame_rate
     else:
