@@ -40,12 +40,15 @@ import jax
 import jax.numpy as jnp
 
 from ._barten_limb import _FIELDS, _Limb, _ex_m, _limb, _limb_peak, _limb_root
-from ._base import _F_HI, CSFModel, check_inputs, float_param
+from ._base import _F_HI, CSFModel, check_constants, check_inputs, float_param
 from ._errors import PlodError
 from ._inverse import implicit_solution
 from ._numerics import LN_FLOOR, as_float, log_guard, safe_log, where_pos
 
 __all__ = ["Barten"]
+
+#: ln of the smallest (u / u0)^2 Barten's ln M_opt follows (see ``log_sensitivity``)
+_LN_X_MIN = math.log(1e-36)
 
 
 class Barten(CSFModel):
@@ -105,6 +108,7 @@ class Barten(CSFModel):
             val = getattr(self, name)
             if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
                 raise PlodError(f"Barten: default {name} must be a finite positive number, got {val!r}")
+        check_constants(self)
 
     # ---------------------------------------------------------------- ancillary formulas
     def pupil_diameter(self, luminance, area):
@@ -145,7 +149,14 @@ class Barten(CSFModel):
         ln_mx = jnp.log(ix + 1.0 / self.x_max**2 + n2)
         ln_my = jnp.log(iy + 1.0 / self.y_max**2 + n2)
         x = (us / self.u_0) ** 2
-        ln_m = where_pos(x, lambda s: jnp.log(-jnp.expm1(-s)), jnp.full_like(x, LN_FLOOR))
+        # ln M_opt's ln(1 - exp(-x)): for x < 1e-4 in log form, 2 ln(u / u0) - x / 2 + x^2 / 24 (error
+        # O(x^3)), so the gradient never holds 1 / x (in float32 it overflowed to -inf for f of 1e-18 to
+        # 3e-14 cycles/deg), held at x = 1e-36 below (f under about 1e-17 cycles/deg: there the threshold's
+        # gradient, ~threshold / f, would leave float32's range); the direct form (double where) elsewhere
+        small = x < 1e-4
+        ln_small = jnp.maximum(2.0 * (jnp.log(us) - jnp.log(self.u_0)) - 0.5 * x + x * x / 24.0, _LN_X_MIN)
+        ln_big = where_pos(jnp.where(small, 1.0, x), lambda s: jnp.log(-jnp.expm1(-s)), jnp.full_like(x, LN_FLOOR))
+        ln_m = jnp.where(small, ln_small, ln_big)
         ln_noise = jnp.logaddexp(-(safe_log(self.eta * self.p) + jnp.log(Es)), safe_log(self.phi_0) - ln_m)
         ln_s = (
             -2.0 * math.pi**2 * sigma**2 * us**2

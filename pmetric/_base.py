@@ -45,16 +45,24 @@ _N_GRID = 257  # grid points of the generic distance scan: ln(1e8) / 256 = 0.072
 
 
 # --------------------------------------------------------------------------- inputs and constants
+#: stimulus arguments that must be given (None is an error); the others (luminance, area, vis_field) may
+#: be None: "unknown", the model's default
+_REQUIRED_ARGS = ("f", "c", "theta", "e", "v", "u", "E", "sigma", "x0", "y0")
+
+
 def check_inputs(_method: str, **arrays):
     """Convert keyword arrays to float arrays, check they broadcast and (when concrete) their values.
 
     Every argument must be >= 0 and not NaN (``+inf`` is allowed). Raises :class:`PlodError` naming the
-    argument. Returns the converted arrays in the order given (``None`` stays ``None``).
+    argument. Returns the converted arrays in the order given (``None`` stays ``None`` for the arguments
+    that may be unknown, luminance, area and the like; for a stimulus argument it is an error).
     """
     out = []
     shapes = {}
     for name, x in arrays.items():
         if x is None:
+            if name in _REQUIRED_ARGS:  # before: a raw TypeError (float * NoneType) further in
+                raise PlodError(f"{_method}: {name} is required (a number or an array), got None")
             out.append(None)
             continue
         if isinstance(x, (str, bytes)):
@@ -63,6 +71,9 @@ def check_inputs(_method: str, **arrays):
             xa = as_float(x)
         except TypeError as err:
             raise PlodError(f"{_method}: {name} must be a number or an array of numbers ({err})") from None
+        except ValueError:  # numpy's "inhomogeneous shape"
+            raise PlodError(f"{_method}: {name} must be a number or a rectangular array of numbers (a ragged "
+                            "list?)") from None
         if not is_tracer(xa):
             xn = np.asarray(xa)
             if np.isnan(xn).any():
@@ -106,6 +117,24 @@ def param(value, name: str, *, positive: bool = True):
         if positive and np.any(a <= 0):
             raise PlodError(f"{name} must be > 0, got {value!r}")
     return arr
+
+
+def check_constants(model) -> None:
+    """PlodError naming the first concrete constant of ``model`` (its ``param_bounds``' fields) that is not
+    finite or lies outside its bounds, as ``load_model`` would refuse it (traced constants are skipped):
+    for models whose fields are converted, not built through :func:`param` (before, ``Barten(k=nan)``
+    returned plausible-looking distances)."""
+    for name, (lo, hi) in type(model).param_bounds.items():
+        val = getattr(model, name)
+        if is_tracer(val):
+            continue
+        a = np.asarray(val)
+        ok = np.isfinite(a) & (True if lo is None else a >= lo) & (True if hi is None else a <= hi)
+        if not np.all(ok):
+            rule = ("finite" if lo is None and hi is None else f">= {lo:g}" if hi is None else
+                    f"<= {hi:g}" if lo is None else f"in [{lo:g}, {hi:g}]")
+            bad = a.ravel()[np.flatnonzero(~np.asarray(ok).ravel())[0]].item()
+            raise PlodError(f"{type(model).__name__}: {name} must be {rule}, got {bad!r}")
 
 
 def distance_margin_k(k, model, c, theta, e, v):
@@ -158,17 +187,27 @@ def _nan_propagating(fn):
     return method
 
 
-class _public:
-    """Decorator of the public methods of :class:`CSFModel`: binds them as :class:`_BoundCSFMethod`,
-    NaN-propagating under tracing (:func:`_nan_propagating`). Accessed on the class it gives the plain
-    function (``CSFModel.imperceptible_distance(m, ...)``)."""
+class jittable:
+    """Decorator of a module's public array method: binds it as a :class:`_BoundCSFMethod`, so that
+    ``jax.jit(obj.method)`` works (a plain equinox bound method of a module with array fields is not
+    hashable) as well as ``eqx.filter_jit``. Accessed on the class it gives the plain function."""
 
     def __init__(self, fn):
-        self.fn = _nan_propagating(fn)
+        self.fn = fn
         functools.update_wrapper(self, fn)
 
     def __get__(self, obj, objtype=None):
         return self.fn if obj is None else _BoundCSFMethod(self.fn, obj)
+
+
+class _public(jittable):
+    """Decorator of the public methods of :class:`CSFModel`: :class:`jittable`, and NaN-propagating under
+    tracing (:func:`_nan_propagating`). Accessed on the class it gives the plain function
+    (``CSFModel.imperceptible_distance(m, ...)``)."""
+
+    def __init__(self, fn):
+        super().__init__(_nan_propagating(fn))
+        functools.update_wrapper(self, fn)
 
 
 class _hook_with_legacy:
@@ -368,10 +407,11 @@ class CSFModel(eqx.Module):
         and velocity ``v / k``. Returns the smallest ``k >= 0`` such that the change is imperceptible
         at every ``k' > k``; at ``k`` itself it is perceptible (within 1e-4 relative) unless k = 0.
         ``k <= 1`` means imperceptible from the current viewpoint. ``theta = 0`` gives 0. Values are finite for
-        every ``theta >= 0``; on the generic path below, gradients are finite for ``theta = 0`` and ``theta``
-        above the square root of the smallest normal float (1.1e-19 deg in float32, 1.5e-154 in float64):
-        below it ``theta^2`` underflows in the implicit derivative (measured; far below any change a
-        display can show, so not guarded).
+        every ``theta >= 0``; on the generic path below (and the paths built on it: KellySpatioTemporal,
+        Eccentric of a velocity model, calibrated tables), gradients are finite for ``theta = 0`` and
+        ``theta`` above about 1e-19 deg in float32 (the square root of the smallest normal float; 1.5e-154
+        in float64): below it ``theta^2`` underflows in the implicit derivative (measured, NaN at 1e-20
+        and 1e-30 deg in float32; far below any change a display can show, so not guarded).
 
         Generic hook (:meth:`_imperceptible_distance`). A model whose ``inputs`` include neither
         ``"e"`` nor ``"v"`` is perceptible at ``k`` iff ``k / (2 theta) <= threshold_frequency(c)``, so

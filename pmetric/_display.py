@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._base import jittable
 from ._errors import PlodError
 
 __all__ = ["Display", "michelson", "michelson_range", "relative_luminance", "srgb_to_linear",
@@ -251,10 +252,14 @@ class Display(eqx.Module):
     @classmethod
     def from_diagonal(cls, diagonal_in, aspect=(16, 9), resolution=(1920, 1080), distance=0.6, **kw) -> "Display":
         """Screen of ``diagonal_in`` inches with aspect ratio ``aspect`` (w, h) viewed from ``distance`` m."""
-        if not (np.isscalar(diagonal_in) and diagonal_in > 0):
+        real = isinstance(diagonal_in, (int, float, np.integer, np.floating)) and not isinstance(diagonal_in, bool)
+        if not (real and math.isfinite(diagonal_in) and diagonal_in > 0):
             raise PlodError(f"Display.from_diagonal: diagonal (inches) must be a positive number, got {diagonal_in!r}")
-        aw, ah = (float(a) for a in aspect)
-        if not (aw > 0 and ah > 0):
+        try:
+            aw, ah = (float(a) for a in aspect)
+        except (TypeError, ValueError):
+            aw = ah = math.nan
+        if not (math.isfinite(aw) and math.isfinite(ah) and aw > 0 and ah > 0):
             raise PlodError(f"Display.from_diagonal: aspect must be two positive numbers, got {aspect!r}")
         diag_m = float(diagonal_in) * 0.0254
         hyp = math.hypot(aw, ah)
@@ -302,6 +307,7 @@ class Display(eqx.Module):
         _check_finite_nonneg("Display.with_distance: distance (m)", distance, positive=True)
         return eqx.tree_at(lambda d: d.distance, self, _float(distance))
 
+    @jittable
     def to_3d(self, xy):
         """Pixel coordinates (..., 2) -> eye-centred 3-D points (..., 3) in m (z = distance)."""
         xy = _float(xy)
@@ -312,16 +318,19 @@ class Display(eqx.Module):
         y = (xy[..., 1] - self.resolution[1] / 2) * py
         return jnp.stack([x, y, jnp.broadcast_to(self.distance, x.shape).astype(x.dtype)], axis=-1)
 
+    @jittable
     def visual_angle(self, p, q):
         """Visual angle (deg) between screen points ``p`` and ``q`` (pixel coords, (..., 2)), broadcast."""
         return jnp.degrees(_angle_between(self.to_3d(p), self.to_3d(q)))
 
+    @jittable
     def eccentricity(self, xy, gaze=None):
         """Eccentricity (deg) of screen points ``xy`` (..., 2) from the ``gaze`` pixel (default: centre)."""
         if gaze is None:
             gaze = jnp.asarray([self.resolution[0] / 2, self.resolution[1] / 2])
         return self.visual_angle(xy, gaze)
 
+    @jittable
     def degrees_per_pixel(self, xy=None):
         """Angle (deg) one pixel subtends horizontally.
 
@@ -337,6 +346,7 @@ class Display(eqx.Module):
         half = jnp.asarray([0.5, 0.0], dtype=xy.dtype)
         return self.visual_angle(xy - half, xy + half)
 
+    @jittable
     def max_frequency(self, xy=None):
         """Highest frequency the display can show, xi = 1 / (2 degrees_per_pixel) cycles/deg [Red01 Eq 5]."""
         return 1.0 / (2.0 * self.degrees_per_pixel(xy))
@@ -346,11 +356,13 @@ class Display(eqx.Module):
         """``max_frequency()`` at the screen centre, cycles/deg."""
         return self.max_frequency()
 
+    @jittable
     def pixels_per_degree(self, xy=None):
         """1 / degrees_per_pixel, px/deg."""
         return 1.0 / self.degrees_per_pixel(xy)
 
     # ------------------------------------------------------------------ photometry
+    @jittable
     def linearize(self, rgb):
         """Encoded RGB in [0, 1] (..., 3) -> per-channel fraction of the channel's full contribution.
 
@@ -379,6 +391,7 @@ class Display(eqx.Module):
             raise PlodError(f"Display: RGB values must have shape (..., 3), got {rgb.shape}")
         return rgb
 
+    @jittable
     def luminance(self, rgb):
         """Luminance (cd/m2) of encoded RGB values in [0, 1], shape (..., 3) -> (...).
 
@@ -391,11 +404,13 @@ class Display(eqx.Module):
             return self.black_level + jnp.sum(self._lut_contrib(rgb), axis=-1)
         return self.black_level + (self.peak_luminance - self.black_level) * relative_luminance(self.linearize(rgb))
 
+    @jittable
     def gray_luminance(self, level):
         """Luminance (cd/m2) of the gray ``(level, level, level)``, ``level`` in [0, 1], shape (...) -> (...)."""
         level = _float(level)
         return self.luminance(jnp.stack([level] * 3, axis=-1))
 
+    @jittable
     def gray_level(self, luminance):
         """Inverse of ``gray_luminance``: the gray level in [0, 1] giving ``luminance`` (cd/m2).
 
@@ -412,6 +427,7 @@ class Display(eqx.Module):
             return linear_to_srgb(u)
         return _linear_to_gamma(u, self.gamma)
 
+    @jittable
     def contrast(self, rgb1, rgb2):
         """Michelson contrast between the luminances of two RGB colours (..., 3) -> (...)."""
         return michelson(self.luminance(rgb1), self.luminance(rgb2))

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from ._base import CSFModel, check_inputs, param
+from ._base import CSFModel, check_constants, check_inputs, param
 from ._errors import PlodError
 from ._inverse import implicit_root
 from ._numerics import clenshaw
@@ -43,6 +43,7 @@ class RovamoVirsu(eqx.Module):
         self.form = form
         self.k1 = param(k1, "RovamoVirsu.k1", positive=False)
         self.k3 = param(k3, "RovamoVirsu.k3", positive=False)
+        check_constants(self)  # k1, k3 >= 0 (their param_bounds, as load_model reads them)
 
     def inverse(self, e):
         """1 / M(e) = 1 + k1 e (+ k3 e^3); e in deg (any shape)."""
@@ -94,6 +95,8 @@ class Eccentric(CSFModel):
             raise PlodError(f"Eccentric needs a CSFModel, got {type(csf).__name__}")
         if "e" in csf.inputs:  # (the instance: an Eccentric's inputs are a property)
             raise PlodError(f"{type(csf).__name__} already depends on eccentricity; wrap a foveal CSF")
+        if magnification is not None and not isinstance(magnification, RovamoVirsu):
+            raise PlodError(f"Eccentric: magnification must be a RovamoVirsu, got {type(magnification).__name__}")
         self.csf = csf
         self.magnification = RovamoVirsu() if magnification is None else magnification
 
@@ -128,7 +131,13 @@ class Eccentric(CSFModel):
         # underflows (k^3 of a 1e-15 deg change is below float32's range: 0 / 0 in the cubic's ratio)
         dt = jnp.result_type(F, e)
         _, n = jnp.frexp(lax.stop_gradient(jnp.maximum(F, e)).astype(dt))
-        scale = lambda x, m: jnp.ldexp(x.astype(dt), m).astype(dt)  # noqa: E731  (ldexp may promote under x64)
+
+        def scale(x, m):  # x 2^m as two constant factors (each within range): jnp.ldexp's derivative is 1,
+            x = x.astype(dt)  # not 2^m, at x = 0 (the fovea: d/de 64x too large) and NaN at subnormal x
+            h = m // 2
+            two = lambda j: lax.stop_gradient(jnp.ldexp(jnp.ones_like(x), j).astype(dt))  # noqa: E731
+            return x * two(h) * two(m - h)
+
         return scale(self._cubic_distance(scale(F, -n), scale(e, -n)), n)
 
     def _cubic_distance(self, F, e):

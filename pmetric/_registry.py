@@ -215,6 +215,13 @@ def _unknown(name: str, table: dict[str, ModelEntry]) -> PlodError:
                      "or a fitted model .json")
 
 
+def _is_file(spec: str) -> bool:
+    try:
+        return Path(spec).is_file()
+    except (OSError, ValueError):  # a name too long for a path, or with a NUL: not a file
+        return False
+
+
 def make_model(spec=None):
     """The CSF model named by ``spec`` (see the module docstring); a model instance is returned as is,
     None gives :func:`default_model`. PlodError for an unknown name, a class that needs arguments, a
@@ -229,7 +236,7 @@ def make_model(spec=None):
         return spec
     if not isinstance(spec, (str, os.PathLike)):
         raise PlodError(f"make_model: expected a model name, file or instance, got {type(spec).__name__}")
-    if isinstance(spec, os.PathLike) or Path(spec).is_file():
+    if isinstance(spec, os.PathLike) or _is_file(spec):
         return _from_file(spec)
     text = spec.strip()
     m = _COMPOSE.match(text)

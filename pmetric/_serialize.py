@@ -219,6 +219,8 @@ def save_model(model: eqx.Module, path: str | os.PathLike) -> Path:
         text = json.dumps(doc, indent=1, allow_nan=False)
     except ValueError as exc:  # a NaN or infinite static value
         raise PlodError(f"save_model: {type(model).__name__} holds a value JSON cannot store ({exc})") from None
+    if Path(path).is_dir():  # before: IsADirectoryError from the atomic rename
+        raise PlodError(f"save_model: {str(path)!r} is a directory; give a file name")
     return atomic_write_text(path, text + "\n")
 
 

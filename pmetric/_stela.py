@@ -41,7 +41,7 @@ from jax import lax
 
 from . import _stela_peak as _peak
 from . import _stela_ray as _ray
-from ._base import CSFModel, _public, distance_margin_k, float_param
+from ._base import CSFModel, _public, check_constants, distance_margin_k, float_param
 from ._errors import PlodError
 from ._inverse import implicit_root, implicit_solution
 from ._numerics import LN_FLOOR, SENSITIVITY_FLOOR, as_float, log_guard, pow_pos, rare_update, safe_log, where_pos
@@ -129,6 +129,7 @@ class StelaCSF(CSFModel):
             val = getattr(self, name)
             if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
                 raise PlodError(f"StelaCSF: default {name} must be a finite positive number, got {val!r}")
+        check_constants(self)
 
     # ---------------------------------------------------------------- components (natural log)
     @staticmethod

@@ -155,6 +155,34 @@ def test_domain_edges_found_by_fuzzing(dtype):
         np.testing.assert_allclose(k0, 2.0 * np.asarray(th, np.float64) * fstar, rtol=1e-5)
 
 
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_gradients_at_the_fovea_and_at_tiny_frequencies(dtype):
+    """Found by a second sweep: Eccentric's distance had d/de 64x too large at e = 0 (jnp.ldexp's derivative
+    is 1 there, not 2^n) and NaN at subnormal e in float32; Barten's threshold gradient was -inf in float32
+    for f of 1e-18 .. 3e-14 cycles/deg (1 / (1 - exp(-x)) overflowed). Now d/de at 0 is the slope just
+    beside it and a finite difference's, and Barten's gradient is finite over f = 0 .. 1e3 and matches a
+    finite difference where the series form takes over."""
+    with jax.enable_x64(dtype == "float64"):
+        dt = jnp.dtype(dtype)
+        for inner in (pm.ManosSakrison(), pm.Barten()):
+            ecc = pm.Eccentric(inner)
+            k = lambda e: ecc.imperceptible_distance(jnp.asarray(0.05, dt), jnp.asarray(0.5, dt), e)  # noqa: E731
+            g0 = float(jax.grad(k)(jnp.asarray(0.0, dt)))
+            beside = float(jax.grad(k)(jnp.asarray(1e-6, dt)))
+            fd = float((k(jnp.asarray(1e-3, dt)) - k(jnp.asarray(0.0, dt))) / 1e-3)
+            assert g0 == pytest.approx(beside, rel=1e-5) and g0 == pytest.approx(fd, rel=2e-3)
+            assert float(jax.grad(k)(jnp.asarray(1e-39, dt))) == pytest.approx(g0, rel=1e-5)  # subnormal in float32
+        b = pm.Barten()
+        f = jnp.asarray(np.concatenate([[0.0], np.geomspace(1e-30, 1e3, 34)]), dt)
+        g = np.asarray(jax.vmap(jax.grad(b.threshold_contrast))(f))
+        assert np.isfinite(g).all()
+        for f0 in (1e-6, 1e-3, 0.05):  # x = (f / u0)^2 below and above the series' 1e-4
+            x = jnp.asarray(f0, dt)
+            h = f0 * (1e-3 if dtype == "float32" else 1e-6)
+            fd = float((b.threshold_contrast(x + h) - b.threshold_contrast(x - h)) / (2 * h))
+            assert float(jax.grad(b.threshold_contrast)(x)) == pytest.approx(fd, rel=1e-2 if dtype == "float32" else 1e-6)
+
+
 @pytest.mark.parametrize("name", list(FACTORIES))
 def test_jit_vmap_match_eager(name, x64):
     model = FACTORIES[name]()
