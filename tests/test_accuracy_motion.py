@@ -75,6 +75,7 @@ def test_config_values_checked_before_any_work(tmp_path, line, key):
     assert (out / "results.jsonl").read_text() == '{"old": 1}\n'
 
 
+@pytest.mark.slow  # about 30 s of rendering and judging: the default tier stays under 10 minutes
 def test_short_orbit_judged(tmp_path):
     pytest.importorskip("torch")
     pytest.importorskip("pyfvvdp")

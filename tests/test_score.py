@@ -557,6 +557,7 @@ def test_moving_view_keys_come_from_the_motion_table(sphere_tree, moving_model):
         optim.prepare_motion_table("stela")
 
 
+@pytest.mark.slow  # 40-55 s (a moving stelaCSF table per channel): the default tier stays under 10 minutes
 def test_moving_thin_band_key_bounds_every_channel(moving_model):
     """With motion the silhouette's thin-band key uses the band constant over velocities too
     (``band_constant(model, motion=True)``), so it still holds the distance of every channel that sees
