@@ -113,11 +113,14 @@ def _check_points(points, normals, colors, name: str = "build_points"):
         raise PlodError(f"{name}: normals must have shape {p.shape} like the points, got {n.shape}")
     if not np.isfinite(n).all():
         raise PlodError(f"{name}: normals contain NaN or infinite values")
-    m = np.abs(n).max(1)  # scaled by the largest component first: 1e-200 or 1e200 long normals are directions too
+    m = np.abs(n).max(1)
     if (m == 0).any():
         raise PlodError(f"{name}: {int((m == 0).sum())} normal(s) are zero (point {int(np.argmin(m))} "
                         "first); every point needs a direction")
-    n = n / m[:, None]
+    far = ~((m > 1e-150) & (m < 1e150))
+    if far.any():  # 1e-200 or 1e200 long normals are directions too: scaled first where the norm would
+        n = n.copy()  # under- or overflow (the others keep the arithmetic of before, bit for bit)
+        n[far] /= m[far, None]
     length = np.linalg.norm(n, axis=1)
     c = None
     if colors is not None:

@@ -82,7 +82,9 @@ class Lighting:
         """(3,) float64 unit vector towards the light (scaled by its largest component first, so a
         direction of 1e-200 or 1e200 units neither underflows nor overflows)."""
         d = np.asarray(self.direction, np.float64)
-        d = d / np.abs(d).max()
+        big = np.abs(d).max()
+        if not 1e-150 < big < 1e150:  # only where the norm would under- or overflow (the usual lengths keep
+            d = d / big  # the arithmetic, hence the keys, of before: bit for bit)
         return d / np.linalg.norm(d)
 
     @classmethod

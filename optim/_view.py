@@ -210,7 +210,8 @@ class View(eqx.Module):
         radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
         radius = radius if radius > 0 else 1.0
         dist = radius / math.sin(math.radians(deg) / 2)
-        d = d / np.abs(d).max()  # first: a 1e308-long direction would overflow its norm
+        if not 1e-150 < np.abs(d).max() < 1e150:  # a 1e308-long direction would overflow its norm: scaled
+            d = d / np.abs(d).max()  # first (usual lengths keep the arithmetic of before, bit for bit)
         eye = centre + d / np.linalg.norm(d) * dist
         up = _vec3("up", up)
         if not np.any(up):  # only an up parallel to the direction is replaced below, not a missing one
