@@ -30,6 +30,21 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return np.divide(x, n, out=np.zeros_like(x), where=n > 0)
 
 
+def unit_any_length(x) -> np.ndarray:
+    """:func:`_unit` of float64 vectors ``x`` (..., 3) of any length: a row whose largest component lies
+    outside (1e-150, 1e150) is first divided by it, so its norm neither under- nor overflows (a 1e200 light
+    lit nothing, a 1e-170 normal was "zero"); the other rows keep ``_unit``'s arithmetic bit for bit."""
+    x = np.asarray(x, np.float64)
+    m = np.abs(x).max(axis=-1, keepdims=True)
+    far = (m > 0) & ~((m > 1e-150) & (m < 1e150))
+    if far.any():
+        x = np.where(far, x / np.where(far, m, 1.0), x)
+    if x.ndim == 1:  # one vector: x / |x| with numpy's 1-D norm, as its callers (lights, views) computed it
+        n = np.linalg.norm(x)
+        return x / n if n > 0 else np.zeros_like(x)
+    return _unit(x)
+
+
 def cube_cells(d: np.ndarray, per_side: int) -> np.ndarray:
     """Cube cell (K,) int64 in ``0 .. 6 per_side^2 - 1`` of each direction (K, 3) (need not be unit;
     zero -> a cell of +x); the layout of the module docstring."""

@@ -67,7 +67,7 @@ from pmetric import PlodError
 
 from ._levels import Levels, expand_ranges, level_runs
 from ._mesh import COORD_MAX, DIAGONAL_MIN
-from ._normal_cube import _unit
+from ._normal_cube import _unit, unit_any_length
 
 __all__ = ["PointHierarchy", "Traversal", "PointTerms", "build_points", "points_from_mesh", "load_points",
            "save_points", "point_terms", "traverse", "walk", "splat_discs", "CRITERIA"]
@@ -117,11 +117,6 @@ def _check_points(points, normals, colors, name: str = "build_points"):
     if (m == 0).any():
         raise PlodError(f"{name}: {int((m == 0).sum())} normal(s) are zero (point {int(np.argmin(m))} "
                         "first); every point needs a direction")
-    far = ~((m > 1e-150) & (m < 1e150))
-    if far.any():  # 1e-200 or 1e200 long normals are directions too: scaled first where the norm would
-        n = n.copy()  # under- or overflow (the others keep the arithmetic of before, bit for bit)
-        n[far] /= m[far, None]
-    length = np.linalg.norm(n, axis=1)
     c = None
     if colors is not None:
         try:
@@ -137,7 +132,7 @@ def _check_points(points, normals, colors, name: str = "build_points"):
             c = c / 255.0
         if c.min() < 0 or c.max() > 1:
             raise PlodError(f"{name}: float colors must lie in [0, 1] (got {c.min():g}..{c.max():g})")
-    return p, n / length[:, None], c
+    return p, unit_any_length(n), c
 
 
 def points_from_mesh(vertices, faces, colors=None):

@@ -24,7 +24,7 @@ from pmetric import PlodError
 
 from ._levels import Levels
 from ._mesh import corner_sum, face_normals
-from ._normal_cube import _unit
+from ._normal_cube import _unit, unit_any_length
 
 __all__ = [
     "Lighting",
@@ -81,11 +81,7 @@ class Lighting:
     def unit(self) -> np.ndarray:
         """(3,) float64 unit vector towards the light (scaled by its largest component first, so a
         direction of 1e-200 or 1e200 units neither underflows nor overflows)."""
-        d = np.asarray(self.direction, np.float64)
-        big = np.abs(d).max()
-        if not 1e-150 < big < 1e150:  # only where the norm would under- or overflow (the usual lengths keep
-            d = d / big  # the arithmetic, hence the keys, of before: bit for bit)
-        return d / np.linalg.norm(d)
+        return unit_any_length(self.direction)
 
     @classmethod
     def coerce(cls, x) -> "Lighting":

@@ -35,6 +35,8 @@ import numpy as np
 
 from pmetric import PlodError
 
+from ._normal_cube import unit_any_length
+
 __all__ = ["View"]
 
 
@@ -210,9 +212,7 @@ class View(eqx.Module):
         radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
         radius = radius if radius > 0 else 1.0
         dist = radius / math.sin(math.radians(deg) / 2)
-        if not 1e-150 < np.abs(d).max() < 1e150:  # a 1e308-long direction would overflow its norm: scaled
-            d = d / np.abs(d).max()  # first (usual lengths keep the arithmetic of before, bit for bit)
-        eye = centre + d / np.linalg.norm(d) * dist
+        eye = centre + unit_any_length(d) * dist  # (a 1e308-long direction: its norm would overflow)
         up = _vec3("up", up)
         if not np.any(up):  # only an up parallel to the direction is replaced below, not a missing one
             raise PlodError("View.framing: up must be a nonzero vector, got (0, 0, 0)")
