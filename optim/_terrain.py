@@ -315,32 +315,6 @@ def _acuity(xi, e, v):
     return out
 
 
-def _cross(a, b):
-    """Cross product of (..., 3) arrays (np.cross without its axis shuffling)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
-
-
-def _angle(a, b):
-    """Angle (deg) between unit vectors (..., 3)."""
-    return np.degrees(np.arctan2(np.linalg.norm(_cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
-
-
-def _arc_distance(g, a, b):
-    """Shortest angle (deg) from unit direction g (3,) to the great-circle arcs a-b (K, 3)."""
-    n = _cross(a, b)
-    nn = np.linalg.norm(n, axis=-1, keepdims=True)
-    n = n / np.maximum(nn, 1e-300)
-    q = g - (n @ g)[:, None] * n
-    qn = np.linalg.norm(q, axis=-1, keepdims=True)
-    q = q / np.maximum(qn, 1e-300)
-    on_arc = (np.sum(_cross(a, q) * n, -1) >= 0) & (np.sum(_cross(q, b) * n, -1) >= 0) & (nn[:, 0] > 1e-12)
-    perp = np.degrees(np.arcsin(np.clip(np.abs(n @ g), 0.0, 1.0)))
-    ends = np.minimum(_angle(a, g[None]), _angle(b, g[None]))
-    return np.where(on_arc, np.minimum(perp, ends), ends)
-
-
 def _culled(hf, cam, R, l, ii, jj, inside=False):
     """True where the square's bounding sphere (about its bounding box) lies wholly outside the field of
     view: beyond the elevation limits, or beyond the azimuth half-planes at +-fov_x/2 (for fov_x >= 180
@@ -349,45 +323,15 @@ def _culled(hf, cam, R, l, ii, jj, inside=False):
     With ``inside=True`` returns (culled, contained): ``contained`` where the sphere lies wholly inside the
     field of view, so no part of the square's box, nor of any descendant's, can be culled.
     """
-    s = 2 ** (hf.levels - l) * hf.spacing
-    lo, hi = hf.zmin[l][ii, jj], hf.zmax[l][ii, jj]
-    c = np.stack([(jj + 0.5) * s, 0.5 * (lo + hi), (ii + 0.5) * s], -1)
-    r = np.sqrt(0.5 * s * s + 0.25 * (hi - lo) ** 2)
-    d = (c - np.asarray(cam.eye, float)) @ R.T
-    dist = np.sqrt(np.einsum("ki,ki->k", d, d))
-    far = dist > r
-    sin_rho = np.where(far, r / np.maximum(dist, 1e-300), 1.0)
-    u = d / np.maximum(dist, 1e-300)[:, None]
+    from ._terrain_bounds import cull_squares
+
+    k = len(ii)
+    out, ins = np.empty(k, bool), np.empty(k, bool)
     hx, hy = (math.radians(a / 2) for a in cam.fov_deg)
-    ca, sa = math.cos(hx), math.sin(hx)
-    dp = u[:, 0] * ca + u[:, 2] * sa  # signed distance (over dist) beyond the azimuth +hx half-plane
-    dm = -u[:, 0] * ca + u[:, 2] * sa
-    wide = hx >= math.pi / 2
-    side = ((dp > sin_rho) & (dm > sin_rho)) if wide else ((dp > sin_rho) | (dm > sin_rho))
-    el = np.arcsin(np.clip(u[:, 1], -1.0, 1.0))
-    rho = np.arcsin(np.clip(sin_rho, 0.0, 1.0))
-    out = far & (side | (el - rho > hy) | (el + rho < -hy))
-    if not inside:
-        return out
-    margin = 1e-9
-    ins = ((dp < -sin_rho - margin) | (dm < -sin_rho - margin)) if wide else \
-        ((dp < -sin_rho - margin) & (dm < -sin_rho - margin))
-    return out, far & ins & (el + rho < hy - margin) & (el - rho > -hy + margin)
-
-
-def _dirs(X, Y, Z, eye, R):
-    """Unit camera-space directions (three (U,) arrays) of the world points (X, Y, Z) from ``eye`` under
-    rotation R (structure of arrays: each step is one contiguous pass, no (U, 3) strides)."""
-    dx, dy, dz = X - eye[0], Y - eye[1], Z - eye[2]
-    u = [R[i, 0] * dx + R[i, 1] * dy + R[i, 2] * dz for i in range(3)]
-    inv = 1.0 / np.maximum(np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]), 1e-300)
-    for c in u:
-        c *= inv
-    return u
-
-
-def _acos_deg(x):
-    return np.degrees(np.arccos(np.clip(x, -1.0, 1.0)))
+    cull_squares(hf.zmin[l], hf.zmax[l], np.ascontiguousarray(ii), np.ascontiguousarray(jj),
+                 float(2 ** (hf.levels - l) * hf.spacing), np.asarray(cam.eye, np.float64),
+                 np.ascontiguousarray(R, np.float64), hx, hy, out, ins)
+    return (out, ins) if inside else out
 
 
 def _corner_nodes(l, a, b):
@@ -409,11 +353,10 @@ def _perceptible_exact(hf, camera, R, g, criteria, moves, dt_s, l, a, b):
     """(K,) bool: the level-l squares (a, b) pass the size test ``s >= 1 / (2 H'(v, e))``, in float64 (the
     reference arithmetic; :func:`_size_test` sends here only the squares its float32 bounds leave open).
 
-    Work is per unique corner (directions, retinal velocity) and the exact eccentricity (distance to the
-    edge arcs) is computed only where it can change the answer: H' is non-increasing in e and v
-    [Red01 Eq 4-5], and e lies in [max(0, c - s/2), c] with c the angle to the nearest corner and s the
-    square's extent (every edge point is within half an edge, <= s/2, of a corner); the gaze can lie inside
-    the square only where c <= s, and only those squares get the inside test.
+    Work is per unique corner (directions, retinal velocity), then per square: the extent, and e as 0
+    where the gaze lies inside the square (tested only where the nearest corner is within the extent, the
+    only squares it can lie inside) else the least angle to its four edge arcs; H'(v, e) [Red01 Eq 4-5]
+    from the model in one call.
     """
     L = hf.levels
     step = 2 ** (L - l)
@@ -425,57 +368,20 @@ def _perceptible_exact(hf, camera, R, g, criteria, moves, dt_s, l, a, b):
 def _size_exact(hf, camera, R, g, criteria, moves, dt_s, r, c, inv):
     """:func:`_perceptible_exact` for squares of any levels given by their corner samples: ``r``, ``c`` (U,)
     int row and column of the grid nodes (samples), ``inv`` (4, K) index of each square's corners NW, NE,
-    SE, SW among them. Returns (K,) bool."""
-    X, Y, Z = c * hf.spacing, hf.heights[r, c], r * hf.spacing
-    U = _dirs(X, Y, Z, np.asarray(camera.eye, float), R)
-    C = [u[inv] for u in U]  # (4, K) each: the corners' directions
-    nxt = [1, 2, 3, 0]  # corner k + 1 (cheaper than np.roll)
-    edge = C[0] * C[0][nxt]  # corners k, k + 1: the four edges
-    diag = C[0][:2] * C[0][2:]  # corners 0-2, 1-3: the diagonals
-    for Ck in C[1:]:
-        edge += Ck * Ck[nxt]
-        diag += Ck[:2] * Ck[2:]
-    ext = _acos_deg(np.minimum(edge.min(0), diag.min(0)))
-    k = inv.shape[1]
-    v = np.zeros(k)
-    if criteria.velocity:
-        if criteria.velocity_deg_s is not None:
-            v = np.full(k, float(criteria.velocity_deg_s))
-        elif moves:
-            prev, acc = U, np.zeros(len(r))
-            for eye_p, Rp in moves:
-                dp = _dirs(X, Y, Z, eye_p, Rp)
-                acc += _acos_deg(prev[0] * dp[0] + prev[1] * dp[1] + prev[2] * dp[2])
-                prev = dp
-            v = (acc / (len(moves) * dt_s))[inv].min(0)
-    if not criteria.periphery:
-        return ext >= 1.0 / (2.0 * _acuity(criteria.xi, np.zeros(k), v))
-    near = _acos_deg(U[0] * g[0] + U[1] * g[1] + U[2] * g[2])[inv].min(0)  # angle (deg) to the nearest corner: an upper bound of e
-    lo = np.maximum(near - 0.5 * ext, 0.0)
-    hi = near.copy()
+    SE, SW among them. Returns (K,) bool. The geometry (extent, e, v) is compiled, one square at a time
+    (``optim._terrain_bounds.exact_terms``), H'(v, e) one call of the model for all of them."""
+    from ._terrain_bounds import exact_terms
 
-    def edges(sel):  # (4 len(sel), 3) each: the selected squares' edges i (corner i to i + 1), edge by edge
-        S = np.stack([Ck[:, sel] for Ck in C], -1)  # (4, len(sel), 3)
-        return S.reshape(-1, 3), S[nxt].reshape(-1, 3)
-
-    cand = np.flatnonzero(near <= ext * (1.0 + 1e-9) + 1e-12)
-    if len(cand):
-        Pc, Qc = edges(cand)
-        sides = (_cross(Pc, Qc) @ g).reshape(4, -1).T
-        inside = ((sides >= 0).all(1) | (sides <= 0).all(1)) & ((Pc @ g).reshape(4, -1).T > 0).all(1)
-        lo[cand[inside]] = 0.0
-        hi[cand[inside]] = 0.0
-    # H' at both ends of e in one call (each JAX call costs 0.1-0.2 ms, the arithmetic per square nothing)
-    h = _acuity(criteria.xi, np.concatenate([hi, lo]), np.concatenate([v, v]))
-    sure = ext >= 1.0 / (2.0 * h[:k])  # perceptible even at the largest possible e
-    out = sure.copy()
-    rest = np.flatnonzero(~sure)
-    amb = rest[ext[rest] >= 1.0 / (2.0 * h[k:][rest])]  # maybe, at the smallest e
-    if len(amb):
-        e = _arc_distance(g, *edges(amb)).reshape(4, -1).min(0)
-        out[amb] = ext[amb] >= 1.0 / (2.0 * _acuity(criteria.xi, e, v[amb]))
-    return out
-
+    measured = criteria.velocity and criteria.velocity_deg_s is None and bool(moves)
+    eyes = np.array([e for e, _ in moves], float).reshape(-1, 3)
+    turns = np.array([Rp for _, Rp in moves], float).reshape(-1, 3, 3)
+    ext, e, v = exact_terms(c * float(hf.spacing), np.ascontiguousarray(hf.heights[r, c], np.float64),
+                            r * float(hf.spacing), np.ascontiguousarray(inv), np.asarray(camera.eye, float),
+                            np.ascontiguousarray(R, float), np.asarray(g, float), eyes, turns,
+                            bool(criteria.periphery), measured, 1.0 / (max(len(moves), 1) * dt_s))
+    if criteria.velocity and criteria.velocity_deg_s is not None:
+        v = np.full(len(ext), float(criteria.velocity_deg_s))
+    return ext >= 1.0 / (2.0 * _acuity(criteria.xi, e, v))
 
 
 # ------------------------------------------------------------------------- the float32 bound pass
@@ -492,22 +398,7 @@ _SERIES = 1.011 / 24
 _SMALL_LEVELS = 4  # levels 0..4 (341 squares) take the size test in one float64 call
 _BOUND_MIN = 0  # levels with at least this many candidate squares take the bound pass (tests raise it)
 _STRIP_NODES = 1 << 16  # nodes per strip of the bound pass (its float32 temporaries stay in cache)
-_VELOCITY_MIN = 0.02  # without periphery: a strip computes its corners' velocities when the motion
-# bound leaves more than this fraction of its candidates open
 _CONSTS: dict = {}
-
-
-def _arc_upper_deg(c: np.ndarray) -> np.ndarray:
-    """An upper bound (deg, float32) of the arc 2 asin(c / 2) between unit vectors whose chord is ``c``:
-    ``c + c^3 * _SERIES`` (rad) for chords up to ``_CHORD_MAX``, ``pi c / 2`` beyond."""
-    x = c * c
-    x *= np.float32(_SERIES)
-    x += np.float32(1.0)
-    x *= c
-    if c.max() > _CHORD_MAX:
-        np.copyto(x, c * np.float32(math.pi / 2), where=c > _CHORD_MAX)
-    x *= np.float32(180.0 / math.pi)
-    return x
 
 
 def _acuity_consts(xi):
@@ -524,69 +415,6 @@ def _acuity_consts(xi):
         c = _CONSTS[key] = (f["xi"], f["g_max"], f["g_intercept"], f["g_slope"] / math.log(10.0), f["g_min"],
                             f["m_scale"], f["m_rate"])
     return c
-
-
-def _dirs32(Y, X, Z, eye, R=None):
-    """float32 unit directions (three (nr, nc) arrays) of the grid nodes at heights ``Y`` (nr, nc) m,
-    columns at x = ``X`` (nc,) m and rows at z = ``Z`` (nr,) m, seen from ``eye``: in world axes
-    (``R`` None; then also returns the distances |p - eye| (nr, nc) m, float32) or rotated by ``R``.
-    The x and z terms are per column / row (float64, rounded once); every component carries at most a
-    few float32 roundings of |p - eye|, so each direction is within ``_EPS_DIR`` of the exact one."""
-    f32 = np.float32
-    dy = np.empty(Y.shape, f32)
-    np.subtract(Y, eye[1], out=dy, casting="same_kind")
-    dx, dz = X - eye[0], Z - eye[2]
-    if R is None:
-        n = dy * dy
-        n += (dx * dx).astype(f32)
-        n += (dz * dz).astype(f32)[:, None]
-        np.sqrt(n, out=n)
-        inv = np.divide(f32(1.0), n)  # a node at the eye: inf, then NaN below, so undecided
-        dy *= inv
-        return [inv * dx.astype(f32), dy, inv * dz.astype(f32)[:, None]], n
-    u = []
-    for i in range(3):
-        c = dy * f32(R[i, 1])
-        c += (R[i, 0] * dx).astype(f32)
-        c += (R[i, 2] * dz).astype(f32)[:, None]
-        u.append(c)
-    n = u[0] * u[0]
-    t = u[1] * u[1]
-    n += t
-    np.multiply(u[2], u[2], out=t)
-    n += t
-    np.sqrt(n, out=n)
-    np.divide(f32(1.0), n, out=n)
-    for c in u:
-        c *= n
-    return u
-
-
-def _chord2(a, b, out, t):
-    """Squared chord |a - b|^2 of float32 unit directions (three arrays each), into ``out``."""
-    np.subtract(a[0], b[0], out=out)
-    out *= out
-    for i in (1, 2):
-        np.subtract(a[i], b[i], out=t)
-        t *= t
-        out += t
-    return out
-
-
-def _corner_min(A):
-    """(nr - 1, nc - 1) minimum over each square's four corners of the node values A (nr, nc)."""
-    m = np.minimum(A[:-1, :-1], A[:-1, 1:])
-    np.minimum(m, A[1:, 1:], out=m)
-    np.minimum(m, A[1:, :-1], out=m)
-    return m
-
-
-def _corner_max(A):
-    """(nr - 1, nc - 1) maximum over each square's four corners of the node values A (nr, nc)."""
-    m = np.maximum(A[:-1, :-1], A[:-1, 1:])
-    np.maximum(m, A[1:, 1:], out=m)
-    np.maximum(m, A[1:, :-1], out=m)
-    return m
 
 
 def _decide(consts, periphery, w_hi, h_s, h_n, g_s, g_n, kmax, far):
@@ -640,147 +468,32 @@ def _strip_bounds(hf, eye, gw, criteria, motion, dt_s, l, i0, i1, j0, j1, cand):
     form on JAX's float32 constants and a relative margin ``_MU`` (H' is non-increasing in e and v
     [Red01 Eq 4-5]). e lies in [near - w/2, near] with near the angle to the nearest corner and w the
     longest edge (every edge point is within half an edge of a corner), and 0 is possible only where
-    near <= s (the gaze inside). The measured velocity (``motion``, see :func:`_motion`): with the
-    periphery criterion, from the corners' directions in the previous cameras over the whole strip;
-    without it, first bounded from the camera motion alone (rotation angles and eye steps), the previous
-    cameras' directions then computed only where that leaves more than ``_VELOCITY_MIN`` of the
-    candidates open (with the periphery, the squares left open are mostly those whose e interval
-    straddles the threshold, which the velocity cannot decide).
+    near <= s (the gaze inside); the squares that interval leaves open get bounds of e from their edge
+    arcs (:func:`_edge_refine`). The measured velocity (``motion``, see :func:`_motion`) is bounded per
+    corner from the chords between its directions in successive cameras. The arithmetic is compiled
+    (``optim._terrain_bounds``, one float32 rounding per operation as the ``_EPS_*`` budget assumes).
     """
+    from ._terrain_bounds import strip_geometry
+
     consts = _acuity_consts(criteria.xi)
-    f32 = np.float32
     step = 2 ** (hf.levels - l)
     Y = hf.heights[i0 * step:i1 * step + 1:step, j0 * step:j1 * step + 1:step]
     X, Z = np.arange(j0, j1 + 1) * step * hf.spacing, np.arange(i0, i1 + 1) * step * hf.spacing
-    U, dist = _dirs32(Y, X, Z, eye)
-    nr, nc = Y.shape
-    sq = (nr - 1, nc - 1)
-    # extent: the largest chord between two of the four corners (four edges shared between squares, two diagonals)
-    eh = _chord2([u[:, :-1] for u in U], [u[:, 1:] for u in U], np.empty((nr, nc - 1), f32),
-                 np.empty((nr, nc - 1), f32))
-    ev = _chord2([u[:-1] for u in U], [u[1:] for u in U], np.empty((nr - 1, nc), f32), np.empty((nr - 1, nc), f32))
-    t1, t2 = np.empty(sq, f32), np.empty(sq, f32)
-    c = _chord2([u[:-1, :-1] for u in U], [u[1:, 1:] for u in U], np.empty(sq, f32), t1)
-    np.maximum(c, _chord2([u[:-1, 1:] for u in U], [u[1:, :-1] for u in U], t1, t2), out=c)
-    em = np.maximum(eh[:-1], eh[1:])  # the longest edge: e >= near - (longest edge) / 2 outside the square
-    np.maximum(em, ev[:, :-1], out=em)
-    np.maximum(em, ev[:, 1:], out=em)
-    np.maximum(c, em, out=c)
-    np.sqrt(c, out=c)
-    deg = f32(180.0 / math.pi)
-    h_s = np.maximum(c - f32(_EPS_CHORD), f32(0.0))  # x_lo (rad), then the H' a sure split needs
-    h_s *= f32(deg * 2.0 * (1.0 - _MU))
-    np.divide(f32(1.0), h_s, out=h_s)  # inf where x_lo = 0
-    c += f32(_EPS_CHORD)
-    x_hi = _arc_upper_deg(c)
-    h_n = np.divide(f32(0.5 / (1.0 + _MU)), x_hi)
-    if criteria.periphery:  # the longest edge's angle (deg), bounded above like x_hi
-        np.sqrt(em, out=em)
-        em += f32(_EPS_CHORD)
-        np.minimum(em, c, out=em)
-        em = _arc_upper_deg(em)
-    kmax = far = None
+    imposed = criteria.velocity and criteria.velocity_deg_s is not None
+    measured = criteria.velocity and not imposed and motion is not None
+    U, h_s, h_n, x_hi, w, kmax, v_hi, v_lo = strip_geometry(
+        Y, X, Z, eye, gw, criteria.periphery, (motion["eyes"], motion["turns"]) if measured else None,
+        motion["scale"] if measured else 0.0, (_EPS_CHORD, _SERIES, _CHORD_MAX, _MU))
+    if measured:
+        g_s, g_n = _G(consts, v_hi), _G(consts, v_lo)
+    else:  # v = 0, or imposed: G known
+        g_s = g_n = _G(consts, criteria.velocity_deg_s if imposed else 0.0)
+    far = None
     if criteria.periphery:
-        k = U[0] * f32(gw[0])
-        k += U[1] * f32(gw[1])
-        k += U[2] * f32(gw[2])
-        kmax = _corner_max(k)
-        far = (kmax + f32(_EPS_COS)) < np.cos(np.minimum(x_hi * f32(math.pi / 180.0), f32(math.pi)))
-    if not criteria.velocity or (criteria.velocity_deg_s is None and motion is None) or \
-            criteria.velocity_deg_s is not None:  # v = 0, or imposed: G known
-        gv = _G(consts, criteria.velocity_deg_s if criteria.velocity and criteria.velocity_deg_s is not None else 0.0)
-        yes, no = _decide(consts, criteria.periphery, em, h_s, h_n, gv, gv, kmax, far)
-        if criteria.periphery:
-            _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, gv, gv)
-        return yes, no
-    # measured velocity, first bounded from the camera motion alone (see _motion): per node, each step's
-    # angle lies within the rotation's part (<= its angle times the sine to its axis, >= 2 sin(angle/2)
-    # times it) plus or minus the parallax; the earlier directions differ from the current one by at most
-    # A = asin(D / r) <= D / sqrt(r^2 - D^2) (D the farthest earlier eye, r the distance)
-    mo = motion
-    if criteria.periphery:  # the corners' velocities over the whole strip (see the docstring)
-        lo, hi = _velocity32(Y, X, Z, U, mo)
-        g_s, g_n = _G(consts, _corner_min(hi) * f32(mo["scale"])), _G(consts, _corner_min(lo) * f32(mo["scale"]))
-        yes, no = _decide(consts, True, em, h_s, h_n, g_s, g_n, kmax, far)
-        _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, g_s, g_n)
-        return yes, no
-    ed = f32(_EPS_DIR)
-    r = dist * f32(1.0 - 1e-6)
-    A = r * r
-    A -= f32(mo["back"] ** 2)
-    np.sqrt(np.maximum(A, f32(0.0)), out=A)
-    np.divide(f32(mo["back"]), A, out=A)  # inf where the eye may have passed the node
-    # sine of the angle to the vertical (the mean rotation axis), bounds from above and below
-    ay = np.abs(U[1])
-    sn_hi = np.maximum(ay - ed, f32(0.0))
-    sn_hi *= sn_hi
-    np.subtract(f32(1.0), sn_hi, out=sn_hi)
-    np.sqrt(np.maximum(sn_hi, f32(0.0)), out=sn_hi)
-    sn_lo = np.minimum(ay + ed, f32(1.0))
-    sn_lo *= sn_lo
-    np.subtract(f32(1.0), sn_lo, out=sn_lo)
-    np.sqrt(np.maximum(sn_lo, f32(0.0)), out=sn_lo)
-    # parallax: sum over steps <= X / sqrt(1 - X^2), X = (C s + Rho + Travel A) / (r - D), s the sine of the
-    # angle to the mean step direction
-    dd = mo["dir"]
-    sd = U[0] * f32(dd[0])
-    sd += U[1] * f32(dd[1])
-    sd += U[2] * f32(dd[2])
-    np.abs(sd, out=sd)
-    sd -= ed
-    np.maximum(sd, f32(0.0), out=sd)
-    sd *= sd
-    np.subtract(f32(1.0), sd, out=sd)
-    np.sqrt(np.maximum(sd, f32(0.0)), out=sd)
-    px = sd * f32(mo["along"])
-    px += f32(mo["across"])
-    px += A * f32(mo["travel"])
-    r -= f32(mo["back"])
-    px /= r
-    np.copyto(px, f32(np.inf), where=r <= f32(mo["travel"]))  # a step may be as long as the distance: unbounded
-    par = px * px
-    np.subtract(f32(1.0), par, out=par)
-    np.sqrt(np.maximum(par, f32(0.0)), out=par)
-    np.divide(px, par, out=par)
-    th_hi = sn_hi + A
-    th_hi *= f32(mo["rot"])
-    th_hi += f32(mo["rot_off"])
-    th_hi += par
-    th_lo = sn_lo - A
-    th_lo *= f32(mo["chord"])
-    th_lo -= f32(mo["chord_off"])
-    th_lo -= par
-    np.fmax(th_lo, f32(0.0), out=th_lo)  # NaN (no rotation, node at the eye's path) to 0
-    scale = mo["scale"]
-    v_hi = _corner_min(th_hi)
-    v_hi *= f32(scale * (1.0 + 1e-5))
-    v_lo = _corner_min(th_lo)
-    v_lo *= f32(scale * (1.0 - 1e-5))
-    g_s, g_n = _G(consts, v_hi), _G(consts, v_lo)
-    yes, no = _decide(consts, criteria.periphery, em, h_s, h_n, g_s, g_n, kmax, far)
-    open_ = cand & ~(yes | no)
-    # the squares the corners' velocities may decide: open, with a G interval wider than a few margins
-    n_open = np.count_nonzero(open_ & (g_n > g_s * f32(1.0 + 4.0 * _MU)))
-    if n_open <= _VELOCITY_MIN * np.count_nonzero(cand):  # few: decided square by square
-        if criteria.periphery:
-            _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, g_s, g_n)
-        return yes, no
-    rows, cols = np.flatnonzero(open_.any(1)), np.flatnonzero(open_.any(0))
-    # the corners' velocity over the squares still open: per node, the sum over steps of the angle between
-    # successive directions (all in the current camera's world axes: R_0^T R_j), from float32 chords
-    a0, a1, b0, b1 = int(rows[0]), int(rows[-1]) + 2, int(cols[0]), int(cols[-1]) + 2
-    lo, hi = _velocity32(Y[a0:a1, b0:b1], X[b0:b1], Z[a0:a1], [u[a0:a1, b0:b1] for u in U], mo)
-    ri, ci = np.nonzero(open_[a0:a1 - 1, b0:b1 - 1])
-    gs2 = np.maximum(_G(consts, _corner_min(hi)[ri, ci] * f32(scale)), g_s[ri + a0, ci + b0])
-    gn2 = np.minimum(_G(consts, _corner_min(lo)[ri, ci] * f32(scale)), g_n[ri + a0, ci + b0])
-    ri += a0
-    ci += b0
-    y2, n2 = _decide(consts, criteria.periphery, em[ri, ci], h_s[ri, ci], h_n[ri, ci], gs2, gn2,
-                     None if kmax is None else kmax[ri, ci], None if far is None else far[ri, ci])
-    yes[ri, ci] = y2
-    no[ri, ci] = n2
+        far = (kmax + np.float32(_EPS_COS)) < np.cos(np.minimum(x_hi * np.float32(math.pi / 180.0),
+                                                               np.float32(math.pi)))
+    yes, no = _decide(consts, criteria.periphery, w, h_s, h_n, g_s, g_n, kmax, far)
     if criteria.periphery:
-        g_s[ri, ci], g_n[ri, ci] = gs2, gn2
         _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, g_s, g_n)
     return yes, no
 
@@ -794,143 +507,35 @@ def _edge_refine(consts, yes, no, cand, far, U, gw, h_s, h_n, g_s, g_n):
     circle asin(|g . n| / |n|), n = P x Q, and that to its nearer end, and is the former where the foot
     of the gaze on the circle falls between P and Q (g.Q - (P.Q)(g.P) > 0 and g.P - (P.Q)(g.Q) > 0), the
     latter where it surely falls outside; e is the least over the four edges. The comparisons with the
-    e a sure split allows / below which none can be are made on sines and cosines. float64 arithmetic on
-    the float32 directions ``U`` (three (nr, nc) arrays) with their error ``_EPS_DIR``; ``h_s``, ``h_n``,
+    e a sure split allows / below which none can be are made on sines and cosines. float64 arithmetic
+    (compiled: ``optim._terrain_bounds.edge_decide``) on the float32 directions ``U`` (three (nr, nc)
+    arrays) with their error ``_EPS_DIR``; ``h_s``, ``h_n``,
     ``g_s``, ``g_n`` as in :func:`_decide` (arrays of the squares' shape, or scalars for g)."""
     ri, ci = np.nonzero(cand & ~(yes | no))
     if not len(ri):
         return
+    from ._terrain_bounds import edge_decide
+
     xi, _, _, _, _, ms, mr = consts
-    ed = _EPS_DIR
-    g = np.asarray(gw, float)
-    hs, hn = h_s[ri, ci].astype(np.float64), h_n[ri, ci].astype(np.float64)
-    q_s = hs / (g_s[ri, ci] if isinstance(g_s, np.ndarray) else g_s)
-    q_n = hn / (g_n[ri, ci] if isinstance(g_n, np.ndarray) else g_n)
-    m0 = min(1.0, ms)
-    # M(e) >= q iff q <= M(0) and e <= E(q) = (sqrt(m_scale / q) - 1) / m_rate (deg); E less / more a
-    # little for the float64 path's own rounding of e, in radians, capped at pi
-    y_ok = (hs <= xi) & (q_s <= m0)
-    n_ok = (hn > xi) | (q_n > m0)
-    rad = math.pi / 180.0
-    with np.errstate(all="ignore"):
-        E_s = np.clip(((np.sqrt(ms / q_s) - 1.0) / mr - 1e-7) * rad, 0.0, math.pi)
-        E_n = np.clip(((np.sqrt(ms / q_n) - 1.0) / mr + 1e-7) * rad, 0.0, math.pi)
-    cs, ss, cn, sn = np.cos(E_s), np.sin(E_s), np.cos(E_n), np.sin(E_n)
-    half_s, half_n = E_s >= math.pi / 2, E_n >= math.pi / 2
-    # the corners NW, NE, SE, SW (4, k) per component; edge i runs from corner i to corner i + 1
-    nc = U[0].shape[1]
-    lin = (ri * nc + ci) + np.array([0, 1, nc + 1, nc])[:, None]  # flat node ids (4, k)
-    nxt = [1, 2, 3, 0]  # corner i + 1 (np.roll costs more than the arithmetic here)
-    P = [u.ravel()[lin].astype(np.float64) for u in U]
-    Q = [p[nxt] for p in P]
-    gP = g[0] * P[0] + g[1] * P[1] + g[2] * P[2]  # (4, k): the cosine to the gaze of each corner
-    gQ = gP[nxt]
-    pq = P[0] * Q[0] + P[1] * Q[1] + P[2] * Q[2]
-    n0, n1, n2 = P[1] * Q[2] - P[2] * Q[1], P[2] * Q[0] - P[0] * Q[2], P[0] * Q[1] - P[1] * Q[0]
-    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-    side = g[0] * n0 + g[1] * n1 + g[2] * n2
-    gn = np.abs(side)
-    t = 6 * ed
-    t1, t2 = gQ - pq * gP, gP - pq * gQ
-    on = (t1 > t) & (t2 > t)  # the foot surely on the arc
-    off = (t1 < -t) | (t2 < -t)  # surely off it
-    cmax = np.maximum(gP, gQ)
-    with np.errstate(all="ignore"):
-        s_hi = np.where(nn > 2 * ed, (gn + 2 * ed) / (nn - 2 * ed), np.inf)
-        s_lo = (gn - 2 * ed) / (nn + 2 * ed)
-    # some edge within E_s: its nearer end within it, or the foot on the arc and the circle within it
-    within = np.any((cmax - ed >= cs) | (on & (half_s | (s_hi <= ss))), 0)
-    # every edge beyond E_n: the ends beyond it and, unless the foot is surely off the arc, the circle too
-    beyond = np.all((cmax + ed < cn) & (off | (~half_n & (s_lo > sn))), 0)
-    # e = 0 only where the float64 path tests the gaze inside: the nearest corner surely within the
-    # extent (the largest cosine to the gaze above the smallest between two corners)
-    d02 = P[0][0] * P[0][2] + P[1][0] * P[1][2] + P[2][0] * P[2][2]  # the diagonals' cosines
-    d13 = P[0][1] * P[0][3] + P[1][1] * P[1][3] + P[2][1] * P[2][3]
-    tested = gP.max(0) - ed > np.minimum(np.minimum(pq.min(0), d02), d13) + 2 * ed
-    inside = (np.all(side > 4 * ed, 0) | np.all(side < -4 * ed, 0)) & np.all(gP > 4 * ed, 0) & tested
-    outside = far[ri, ci] | (np.any(side > 4 * ed, 0) & np.any(side < -4 * ed, 0)) | np.any(gP < -4 * ed, 0)
-    yes[ri, ci] = y_ok & (inside | (outside & within))
-    no[ri, ci] = n_ok | (outside & beyond)
-
-
-def _velocity32(Ys, Xs, Zs, U, mo):
-    """Per node (nr, nc) float32 bounds (lo, hi) of the sum over the previous steps of the angle (rad) between
-    successive directions, from float32 chords: the grid nodes at heights ``Ys`` (nr, nc), x = ``Xs`` (nc,),
-    z = ``Zs`` (nr,) m, ``U`` their current directions (world axes, :func:`_dirs32`), ``mo`` :func:`_motion`."""
-    f32 = np.float32
-    prev = U
-    s1 = np.zeros(Ys.shape, f32)
-    s3 = np.zeros(Ys.shape, f32)
-    d2, d = np.empty(Ys.shape, f32), np.empty(Ys.shape, f32)
-    for eye_p, S in mo["moves"]:
-        dp = _dirs32(Ys, Xs, Zs, eye_p, S)
-        _chord2(prev, dp, d2, d)
-        np.sqrt(d2, out=d)
-        s1 += d
-        d2 *= d
-        s3 += d2
-        prev = dp
-    n = len(mo["moves"])
-    ve = f32(1.02 * n * _EPS_CHORD)
-    # per node: the angle sum lies in [s1 + s3 / 24 - ve, s1 + s3 * _SERIES + ve] when every chord is
-    # <= _CHORD_MAX (so when s1 is), else in [s1 - n eps, pi / 2 (s1 + n eps)]
-    lo = s3 * f32(1.0 / 24.0)
-    lo += s1
-    lo -= ve
-    hi = s3 * f32(_SERIES)
-    hi += s1
-    hi += ve
-    if s1.max() > _CHORD_MAX:
-        w = s1 > _CHORD_MAX
-        np.copyto(lo, s1 - f32(n * _EPS_CHORD), where=w)
-        np.copyto(hi, (s1 + f32(n * _EPS_CHORD)) * f32(math.pi / 2), where=w)
-    return lo, hi
+    k = len(ri)
+    pick = lambda a: np.ascontiguousarray(a[ri, ci], np.float64) if isinstance(a, np.ndarray) else \
+        np.full(k, float(a))  # noqa: E731
+    y, n = np.empty(k, bool), np.empty(k, bool)
+    edge_decide(ri, ci, *U, np.asarray(gw, np.float64), pick(h_s), pick(h_n), pick(g_s), pick(g_n),
+                np.ascontiguousarray(far[ri, ci]), float(xi), float(ms), float(mr), _EPS_DIR, y, n)
+    yes[ri, ci] = y
+    no[ri, ci] = n
 
 
 def _motion(eye, R, moves, dt_s):
-    """What the bound pass needs of the camera motion (None without previous cameras), a dict:
-
-    ``rot`` / ``chord``: the sums over steps of the rotation angles w_j (rad) / of 2 sin(w_j / 2);
-    ``rot_off`` / ``chord_off``: the same weighted by |n_j - y| (n_j the axis, y the vertical, either
-    sign), plus an allowance for rounding (a node's rotation part is <= w_j |u x n_j| and >= 2 sin(w_j / 2)
-    |u x n_j|, and |u x n_j| is within |n_j - y| of |u x y|); ``dir``: the mean step direction (3,),
-    ``along`` / ``across``: the sums of the steps' components along it and across it (m), ``travel``: the
-    sum of the step lengths (m), ``back``: the farthest an earlier eye lies from the current one (m);
-    ``scale``: deg/s per radian of angle sum; ``moves``: [(eye (3,), R_0^T R_j (3, 3))] of the previous
-    cameras (directions in the current camera's world axes). ``moves``: [(eye, R)], most recent first."""
+    """What the bound pass needs of the previous cameras (None without them), a dict: ``eyes`` (m, 3) m,
+    ``turns`` (m, 3, 3) R_0^T R_j (their directions in the current camera's world axes), ``scale``: deg/s
+    per radian of angle sum. ``moves``: [(eye, R)], most recent first."""
     if not moves:
         return None
-    cams = [(eye, R)] + list(moves)
-    y = np.array([0.0, 1.0, 0.0])
-    rot = chord = rot_off = chord_off = 0.0
-    steps = []
-    for (e0, R0), (e1, R1) in zip(cams, cams[1:]):
-        Q = R0.T @ R1  # world-frame rotation between the two cameras' views of one direction
-        w = math.acos(max(-1.0, min(1.0, (float(np.trace(Q)) - 1.0) / 2.0)))
-        ax = np.array([Q[2, 1] - Q[1, 2], Q[0, 2] - Q[2, 0], Q[1, 0] - Q[0, 1]])
-        na = float(np.linalg.norm(ax))
-        off = 2.0 if na < 1e-6 else \
-            min(float(np.linalg.norm(ax / na - y)), float(np.linalg.norm(ax / na + y))) + 1e-9 / na
-        w_hi, w_lo = w + 1e-7, max(w - 1e-7, 0.0)
-        rot += w_hi
-        rot_off += w_hi * off + 1e-7
-        c = 2.0 * math.sin(w_lo / 2.0)
-        chord += c
-        chord_off += c * off + 1e-7
-        steps.append(e0 - e1)
-    steps = np.array(steps)
-    tot = steps.sum(0)
-    nt = float(np.linalg.norm(tot))
-    d = tot / nt if nt > 0 else np.array([1.0, 0.0, 0.0])
-    along = float(np.abs(steps @ d).sum())
-    across = float(np.linalg.norm(steps - np.outer(steps @ d, d), axis=1).sum())
-    travel = float(np.linalg.norm(steps, axis=1).sum())
-    back = max(float(np.linalg.norm(e - eye)) for e, _ in moves)
-    k = 1.0 + 1e-9
-    return {"rot": rot, "chord": chord, "rot_off": rot_off + 2e-7 * len(moves),
-            "chord_off": chord_off + 2e-7 * len(moves),
-            "dir": d, "along": along * k + 1e-9, "across": across * k + 1e-9, "travel": travel * k, "back": back * k,
-            "scale": 180.0 / math.pi / (len(moves) * dt_s), "moves": [(e, R.T @ Rj) for e, Rj in moves]}
+    return {"eyes": np.array([np.asarray(e, float) for e, _ in moves]),
+            "turns": np.array([R.T @ Rj for _, Rj in moves]),
+            "scale": 180.0 / math.pi / (len(moves) * dt_s)}
 
 
 def _size_small(hf, camera, R, g, criteria, moves, dt_s, levels):
@@ -1015,7 +620,9 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     state, splits), the cull test on the candidate squares only (their flat indices; done once and reused
     by the leaf pass) and the size test as a float32 bound pass over strips of the level's grid that
     decides all but a small fraction of the squares, the rest in float64 (:func:`_size_test`; the answer is
-    the float64 test's square for square).
+    the float64 test's square for square). The per-square arithmetic of the cull test, the bound pass,
+    the float64 test's geometry and the leaf pass is compiled (``optim._terrain_bounds``, numba; the first
+    call of a process compiles or loads it from numba's cache).
     """
     L = hf.levels
     if not (dt_s > 0):
@@ -1098,42 +705,23 @@ def _leaves(hf, camera, R, criteria, split, culled):
     """The drawn leaves per level from the restricted split set (dense level maps, one pass per level):
     a leaf is a square whose parent is split and which is not split itself; with ``cull``, leaves whose
     state the refinement left unknown get the cull test here (a contained parent's children are visible)."""
+    from ._terrain_bounds import level_leaves
+
     L = hf.levels
     drawn, fans = [], []
     tri = 0
+    hx, hy = (math.radians(a / 2) for a in camera.fov_deg)
+    eye, R = np.asarray(camera.eye, np.float64), np.ascontiguousarray(R, np.float64)
+    none8, none1 = np.zeros((1, 1), np.int8), np.ones((1, 1), bool)
     for l in range(L + 1):
-        m = 2 ** l
-        leaf = np.ones((1, 1), bool) if l == 0 else _up(split[l - 1])
-        if l < L:
-            leaf &= ~split[l]
-        if criteria.cull:
-            if culled[l] is not None:  # levels < L: the refinement's map (3 under every contained parent)
-                known = culled[l]
-                leaf &= known != 2
-                unknown = leaf & (known == 0)
-            else:  # the finest level was never tested: visible under a contained parent, else unknown
-                unknown = leaf & ~_up(culled[l - 1] == 3)
-            t = np.flatnonzero(unknown)
-            if len(t):
-                leaf.flat[t] = ~_culled(hf, camera, R, l, t >> l, t & (m - 1))
-        idx = np.flatnonzero(leaf)
-        if l < L:
-            # the split map padded by one square: neighbours north, east, south, west by flat offsets
-            P = np.zeros((m + 2, m + 2), bool)
-            P[1:-1, 1:-1] = split[l]
-            P = P.ravel()
-            p = idx + 2 * (idx >> l) + (m + 3)
-            fan = np.empty((len(idx), 4), bool)
-            for e, off in enumerate((-(m + 2), 1, m + 2, -1)):
-                np.take(P, p + off, out=fan[:, e])
-            tri += _fan_triangles(fan)
-        else:  # the finest level has no finer neighbour: two triangles each
-            fan = np.zeros((len(idx), 4), bool)
-            tri += _fan_triangles(fan)
-        rc = np.empty((2, len(idx)), idx.dtype)  # (row, column) as columns of a (K, 2) view
-        np.right_shift(idx, l, out=rc[0])
-        np.bitwise_and(idx, m - 1, out=rc[1])
-        drawn.append(rc.T)
+        known = none8
+        if criteria.cull:  # levels < L: the refinement's map; the finest: 3 under a contained parent, else 0
+            known = culled[l] if l < L else _inherit(culled[L - 1])
+        rc, fan = level_leaves(l, none1 if l == 0 else split[l - 1], split[l] if l < L else none1, l == L,
+                               bool(criteria.cull), known, hf.zmin[l], hf.zmax[l],
+                               float(2 ** (L - l) * hf.spacing), eye, R, hx, hy)
+        tri += _fan_triangles(fan)
+        drawn.append(rc)
         fans.append(fan)
     return TerrainLOD(split, drawn, fans, tri, L)
 

@@ -369,6 +369,7 @@ def test_bound_pass_error_budget():
     axes and rotated), the chord series bound, and JAX's float32 H' against the closed form on its
     float32 constants."""
     from optim import _terrain as T
+    from optim._terrain_bounds import dirs32
 
     rng = np.random.default_rng(0)
     z = rng.uniform(0.0, 600.0, (40, 50))
@@ -381,8 +382,7 @@ def test_bound_pass_error_budget():
         for rot in (None, R):
             d = P if rot is None else P @ rot.T
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-            got = T._dirs32(z, X, Z, eye, rot)
-            got = got[0] if rot is None else got
+            got = dirs32(z, X, Z, eye, rot)
             worst = max(worst, float(np.max(np.linalg.norm(np.stack(got, -1) - d, axis=-1))))
     assert worst < T._EPS_DIR / 4, worst
     c = np.linspace(1e-4, T._CHORD_MAX, 10001)
@@ -397,6 +397,52 @@ def test_bound_pass_error_budget():
         G = np.clip(gint - gsl * np.log(np.maximum(v32, 1e-300)), gmin, gmax)
         H = np.minimum(xi32, G * np.minimum(1.0, ms / (1 + mr * e32) ** 2))
         assert np.max(np.abs(T._acuity(xi, e, v) / H - 1)) < T._MU / 10
+
+
+def test_bound_pass_decisions_agree_with_the_float64_test():
+    """The compiled float32 bound pass (optim._terrain_bounds) over whole levels: every square it decides
+    has the float64 test's answer (yes: perceptible, no: not), it decides nearly all of them, and a corner
+    at the eye (no direction: NaN) leaves its squares to the float64 test instead of deciding them."""
+    from optim import _terrain as T
+
+    hf = Heightfield(fractal_heightfield(129, seed=3, relief=30.0), 1.0)
+    decided = total = balance = 0
+    # (xi, eye scale, gaze): the display's cap binding; no cap, far, gaze off-centre (e and v matter)
+    for xi, sc, gaze in ((3.2, 1.0, (4.0, -2.0)), (None, 6.0, (25.0, -10.0))):
+        eye = np.array([-900.0, 360.0, -600.0]) * sc
+        fwd = 64.0 - eye
+        cam = TerrainCamera(eye, fwd, fov_deg=(120, 90), gaze_deg=gaze)
+        prev = [TerrainCamera(eye - [2.0 * k * sc, 0.1 * k, -1.5 * k * sc], fwd + np.array([0.0, 0, -12.0 * k * sc]),
+                              fov_deg=(120, 90)) for k in (1, 2, 3)]
+        R, g = cam.rotation(), cam.gaze()
+        moves = [(np.asarray(c.eye, float), c.rotation()) for c in prev]
+        mo = T._motion(eye, R, moves, 1 / 30)
+        for per in (False, True):
+            for vel in (None, "measured", 5.0):
+                crit = TerrainCriteria(periphery=per, velocity=vel is not None,
+                                       velocity_deg_s=vel if isinstance(vel, float) else None, xi=xi)
+                for l in (6, 7):
+                    m = 2 ** l
+                    with np.errstate(all="ignore"):
+                        yes, no = T._strip_bounds(hf, eye, R.T @ g, crit, mo, 1 / 30, l, 0, m, 0, m, np.ones((m, m), bool))
+                    a, b = np.divmod(np.arange(m * m), m)
+                    exact = T._perceptible_exact(hf, cam, R, g, crit, moves, 1 / 30, l, a, b).reshape(m, m)
+                    assert not np.any(yes & ~exact) and not np.any(no & exact), (xi, per, vel, l)
+                    decided += np.count_nonzero(yes | no)
+                    total += m * m
+                    balance += 0.1 < exact.mean() < 0.95
+    assert decided > 0.97 * total, decided / total
+    assert balance >= 8  # the answers are mixed (a test that decides everything one way proves nothing)
+    # the eye exactly at a grid node: its four squares are left open, the others decided as before
+    i, j = 64, 40
+    eye = np.array([j * 1.0, hf.heights[i, j], i * 1.0])
+    crit = TerrainCriteria(periphery=True, velocity=False, xi=3.2)
+    with np.errstate(all="ignore"):
+        yes, no = T._strip_bounds(hf, eye, np.array([1.0, 0.0, 0.0]), crit, None, 1 / 30, 7, 0, 128, 0, 128,
+                                  np.ones((128, 128), bool))
+    around = np.zeros((128, 128), bool)
+    around[i - 1:i + 1, j - 1:j + 1] = True
+    assert not np.any((yes | no) & around) and np.count_nonzero(yes | no) > 0.9 * 128 * 128
 
 
 @pytest.mark.parametrize("line, msg", [

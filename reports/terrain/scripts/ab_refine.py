@@ -1,6 +1,6 @@
 """One-run A/B of the per-frame refinement of the 1025 x 1025 fractal: refine_terrain at a git revision against
 this tree, the same flight frames alternated (every ``--step``-th frame from 3, as the table's ms columns), one
-core, checking that both give the same split sets and triangles:
+core, checking that both give the same split sets, drawn leaves, fans and triangles:
 
     OMP_NUM_THREADS=1 taskset -c 1 .venv/bin/python reports/terrain/scripts/ab_refine.py [REV] [--step 10]
 
@@ -28,7 +28,9 @@ ap.add_argument("--step", type=int, default=10)
 a = ap.parse_args()
 old = types.ModuleType("old_terrain")
 sys.modules["old_terrain"] = old
+old.__package__ = "optim"  # its relative imports (optim._terrain_bounds) resolve in this tree
 exec(subprocess.check_output(["git", "-C", str(ROOT), "show", f"{a.rev}:optim/_terrain.py"]).decode(), old.__dict__)
+old.TerrainCamera = T.TerrainCamera  # refine_terrain checks its cameras' class: the flight's are this tree's
 hf = T.Heightfield(T.fractal_heightfield(1025, seed=0, relief=600.0), 10.0)
 fl = load_config(repo_path("configs/terrain_flight.toml"), FLIGHT)
 cams = flight_cameras(hf, fl)
@@ -53,10 +55,11 @@ for name in ("cull", "size + cull", "size + periphery + cull", "size + velocity 
             wall[key].append(time.perf_counter() - t0)
             cpu[key] += time.process_time() - c0
         same += out["old"].triangles == out["new"].triangles and all(
-            np.array_equal(x, y) for x, y in zip(out["old"].split, out["new"].split))
+            np.array_equal(x, y) for f in ("split", "drawn", "fans")
+            for x, y in zip(getattr(out["old"], f), getattr(out["new"], f)))
     o, n = np.array(wall["old"]), np.array(wall["new"])
     print(f"{name}: old {1e3 * np.median(o):.1f} / {1e3 * o.max():.1f} ms, new {1e3 * np.median(n):.1f} / "
           f"{1e3 * n.max():.1f} ms (median / worst); ratio median {np.median(o) / np.median(n):.2f}x, worst "
           f"{o.max() / n.max():.2f}x, per-frame median {np.median(o / n):.2f}x; CPU {cpu['old']:.2f} s vs "
-          f"{cpu['new']:.2f} s ({cpu['old'] / cpu['new']:.2f}x); identical split sets and triangles in "
+          f"{cpu['new']:.2f} s ({cpu['old'] / cpu['new']:.2f}x); identical split sets, leaves and triangles in "
           f"{same}/{len(frames)} frames", flush=True)
