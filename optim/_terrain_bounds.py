@@ -326,6 +326,10 @@ def edge_decide(ri, ci, U0, U1, U2, g, hs, hn, gs, gn, far, xi, ms, mr, ed, yes,
         # the corners NW, NE, SE, SW; edge e runs from corner e to corner e + 1
         for e, (a, b) in enumerate(((i, j), (i, j + 1), (i + 1, j + 1), (i + 1, j))):
             P0[e], P1[e], P2[e] = U0[a, b], U1[a, b], U2[a, b]
+        if not np.isfinite(P0.sum() + P1.sum() + P2.sum()):  # a corner at the eye: neither (as NaN does in numpy)
+            yes[k] = False
+            no[k] = False
+            continue
         within = False
         beyond = True
         all_pos = all_neg = all_front = True
