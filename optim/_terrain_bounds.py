@@ -1,14 +1,20 @@
-"""The float32 bound pass of the terrain size test as compiled loops (numba) [Red01 Eq 4-5].
+"""The terrain refinement's per-square arithmetic as compiled loops (numba) [Red01 Eq 4-5].
 
-Written by hand because no library does it: :func:`strip_bounds` is the per-strip arithmetic of
-``optim._terrain._size_test`` (the corners' float32 unit directions, the squares' extents, the cosines to
-the gaze, the retinal velocity from chords, and the sure / surely-not decisions of the size test from
-them), fused into two loops over a strip's nodes and squares. As numpy expressions the same arithmetic
-took about 200 whole-array passes per node, each through memory; compiled, each value is made once in
-registers and the inner loops run as SIMD float32 (numba's LLVM vectorizes them: no arc functions, no
-branches it cannot turn into selects). The error analysis is in ``optim/_terrain.py`` (``_EPS_*``): the
-arithmetic here is the one it bounds, one float32 rounding per operation (no fast-math, so no
-contraction into fused multiply-adds and no reassociation).
+Written by hand because no library does it: these are the inner loops of ``optim/_terrain.py``, which
+keeps the algorithm, the error budget and the decisions. As numpy expressions the same arithmetic took
+about 200 whole-array passes per node, each through memory; compiled, each value is made once in
+registers. Stages, in the order a level uses them:
+
+* :func:`strip_geometry`: the float32 bound pass's geometry over a strip of a level's grid (the corners'
+  unit directions, the squares' extent and longest-edge bounds, the cosines to the gaze, the retinal
+  velocity from the chords between successive cameras). Its inner loops are branch-free (selects only),
+  so LLVM makes them SIMD. One float32 rounding per operation, in the order the ``_EPS_*`` budget of
+  ``optim/_terrain.py`` bounds (no fast-math: no contraction into fused multiply-adds, no reassociation).
+  The decisions from it stay numpy (its SIMD ``log`` and ``cos``; numba calls scalar libm here).
+* :func:`edge_decide`: the decisions from bounds of e on the edge arcs, for the squares the bound pass
+  leaves open (float64).
+* :func:`exact_terms`: the float64 test's extent, eccentricity and velocity, one square at a time.
+* :func:`cull_squares` and :func:`level_leaves`: the field-of-view test and the leaf pass.
 
 Units: metres, radians unless a name ends in ``deg``; velocities deg/s; H' cycles/deg.
 """
