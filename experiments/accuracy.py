@@ -104,6 +104,20 @@ def load_meshes(cfg):
     return out
 
 
+def absent_inputs(cfg) -> list[str]:
+    """The config's mesh files and JSON model files that are not found (``load_meshes`` and
+    ``load_models`` skip them, so that a checkout without ``../shared`` still runs the procedural cells):
+    the reports name them, so that a sweep with fewer cells than its config says so."""
+    names = list(cfg.get("meshes", ())) + [m for m in cfg.get("models", ()) if str(m).lower().endswith(".json")]
+    return [n for n in names if not repo_path(n).is_file()]
+
+
+def absent_line(cfg) -> str:
+    """One report line naming :func:`absent_inputs`, or "" when every file was found."""
+    gone = absent_inputs(cfg)
+    return f"**Not run** (in the config, files not found): {', '.join(f'`{n}`' for n in gone)}.\n" if gone else ""
+
+
 def load_models(names):
     from pmetric import make_model
 
@@ -345,6 +359,8 @@ def write_report(rows, cfg, command, out, images=()):
          f"mesh (seed {cfg['seed']}), object {cfg['object_deg']:g} deg, gaze offsets "
          f"{', '.join(f'{g:g}' for g in cfg['gaze_offsets_deg'])} deg from its centre, gaze error "
          f"{cfg['gaze_error_deg']:g} deg. None of these meshes or views is used by the tests.\n"]
+    if absent_line(cfg):
+        L.append(absent_line(cfg))
     if cfg.get("face_cull"):
         L.append(f"**Face culling on**: plod's cuts (imperceptible, perceptual, size, geometric, models) are drawn "
                  f"without the triangles that face away from the eye by more than {cfg['face_cull_margin_deg']:g} deg "

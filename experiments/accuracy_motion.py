@@ -252,6 +252,8 @@ def check_config(cfg: dict) -> dict:
 
 
 def run_config(path, out=None, progress=None) -> Path:
+    from experiments.accuracy import absent_line
+
     cfg = check_config(load_config(path, DEFAULTS))
     command = "python -m experiments.accuracy_motion" + (f" --config {path}" if path else "")
     try:
@@ -268,6 +270,8 @@ def run_config(path, out=None, progress=None) -> Path:
             "recomputed per frame; the peers simplified once at the perceptual cut's mean drawn count. Video: the "
             "clip judged by FovVideoVDP with the fixation held at the gaze; stills: one frame in "
             f"{cfg['still_every']} judged alone. Meshes in no test and not in the accuracy sweep.", ""]
+    if absent_line(cfg):
+        head += [absent_line(cfg)]
     atomic_write_text(out / "report.md", "\n".join(head + summarise(rows)))
     _plot(rows, out / "video_vs_still.png")
     save_run_info(out, cfg, cfg["seed"], command)

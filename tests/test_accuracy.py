@@ -101,6 +101,23 @@ def test_summary_counts_wins_and_gains():
     assert s["update_ms"]["relit"] == 10.0
 
 
+def test_report_names_config_files_not_found(tmp_path):
+    """Mesh and model files the config names but the checkout lacks are skipped (the procedural cells still
+    run without ../shared), and the report says which: a sweep with fewer cells than its config is not
+    silent about it."""
+    rows = [_row("a", "relit", "perceptual", 0.1, 9.5), _row("a", "relit", "size", 0.1, 9.3)]
+    cfg = {**A.DEFAULTS, "lightings": ["relit"], "budgets": [0.1], "model_budget": 0.1,
+           "meshes": ["../shared/data/meshes/horse.ply", "nowhere/missing-mesh.ply"],
+           "models": ["kellyabstract", "nowhere/missing-model.json"]}
+    A.write_report(rows, cfg, "test", tmp_path)
+    text = (tmp_path / "report.md").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("**Not run**"))
+    assert "`nowhere/missing-mesh.ply`" in line and "`nowhere/missing-model.json`" in line
+    assert "kellyabstract" not in line and ("horse.ply" in line) != A.repo_path(cfg["meshes"][0]).is_file()
+    A.write_report(rows, {**cfg, "meshes": [], "models": ["kellyabstract"]}, "test", tmp_path)
+    assert "**Not run**" not in (tmp_path / "report.md").read_text()
+
+
 def test_views_are_seeded_and_not_from_above():
     a = A.view_directions(5, 7, "horse")
     np.testing.assert_array_equal(a, A.view_directions(5, 7, "horse"))
