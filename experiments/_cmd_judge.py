@@ -133,8 +133,10 @@ def judge_files(args) -> dict:
             J.save_judgement(png, res, protect=(args.original, args.result), titles=(
                 f"original: {len(meshes['original'][1]):,} triangles",
                 f"result: {len(meshes['result'][1]):,} triangles"))
+        # a result wholly outside the original's frame (or behind the eye) renders as the empty image: its
+        # score is that image's, which the table says rather than leaves to be guessed
         rows.append({"mode": mode, "jod": res.jod, "flip_mean": res.flip_mean, "seconds": round(res.seconds, 3),
-                     "png": None if png is None else str(png)})
+                     "png": None if png is None else str(png), "result_drawn": bool(res.test.max() > res.test.min())})
     h, w = res.reference.shape[:2]
     return {
         "original": str(args.original), "result": str(args.result),
@@ -165,5 +167,10 @@ def run(args) -> int:
         table.add_column(col, justify="left" if col in ("mode", "picture") else "right")
     for r in res["results"]:
         table.add_row(r["mode"], f"{r['jod']:.3f}", f"{r['flip_mean']:.4f}", f"{r['seconds']:.1f}", r["png"] or "")
-    Console().print(table)
+    console = Console()
+    console.print(table)
+    empty = [r["mode"] for r in res["results"] if not r["result_drawn"]]
+    if empty:
+        console.print(f"note: the result draws nothing in this view ({', '.join(empty)}): it lies wholly outside "
+                      "the original's frame or behind the eye, so it is scored as the empty image")
     return 0

@@ -147,6 +147,15 @@ def test_plod_judge_cli(tmp_path, capsys, vdp):
         assert what in err and err.count("\n") == 1
     assert main(["judge", str(a), str(tmp_path / "missing.ply")]) == 2
     assert "not found" in capsys.readouterr().err
+    # a result wholly outside the original's frame is scored as the empty image, and the table says so
+    far = tmp_path / "far.obj"
+    v, f = optim.icosphere(2)
+    optim.save_mesh(far, v * 0.5 + [40.0, 0.0, 0.0], f)
+    assert main(["judge", str(a), str(far), "--size", "64,36", "--json", str(js)]) == 0
+    assert "the result draws nothing in this view (relit)" in capsys.readouterr().out
+    row = json.loads(js.read_text())["results"][0]
+    assert row["result_drawn"] is False and row["jod"] < 8.0
+    assert all(r["result_drawn"] for r in res["results"])
     # an original without extent frames nothing (before: framed with a radius of 1 and scored)
     dot = tmp_path / "dot.ply"
     optim.save_mesh(dot, np.zeros((3, 3)), np.array([[0, 1, 2]]))
