@@ -16,14 +16,13 @@ numpy, and no library here searches a cut's budget by its culled count.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
 
 from pmetric import PlodError
 
-from ._mesh import face_normal_columns
+from ._mesh import face_normal_columns, real_or_nan
 
 __all__ = ["VisibleCut", "facing_away", "drop_back_faces", "visible_budget_cut"]
 
@@ -41,10 +40,7 @@ def _eye(view_or_eye) -> np.ndarray:
 
 
 def _check_margin(margin_deg) -> float:
-    try:
-        m = math.nan if isinstance(margin_deg, (bool, np.bool_)) else float(margin_deg)
-    except (TypeError, ValueError):
-        m = math.nan
+    m = real_or_nan(margin_deg)
     if not (0.0 <= m < 90.0):
         raise PlodError(f"facing_away: margin_deg must be in [0, 90) deg, got {margin_deg!r}")
     return m

@@ -180,6 +180,17 @@ def validated_mesh_and_normals(vertices, faces, colors=None, *, name: str = "mes
     return ValidatedMesh(v, np.ascontiguousarray(f.astype(np.int32)), c, report), cr
 
 
+def real_or_nan(x) -> float:
+    """``float(x)``, or NaN for what is not a real number (a string, None, a bool), so that one range check
+    (``not (lo <= v < hi)``) refuses all of them (shared by the views', lights' and margins' checks)."""
+    if isinstance(x, (bool, np.bool_)):
+        return math.nan
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def _check_arrays(vertices, faces, name: str):
     """Shapes, dtypes, NaN/inf and index range of the raw arrays -> (v float64, f int64)."""
     v = np.asarray(vertices)

@@ -11,7 +11,6 @@ standard computer monitor, normalized to the range [0, 1]").
 from __future__ import annotations
 
 import dataclasses
-import math
 import hashlib
 import json
 import os
@@ -23,7 +22,7 @@ import numpy as np
 from pmetric import PlodError
 
 from ._levels import Levels
-from ._mesh import corner_sum, face_normals
+from ._mesh import corner_sum, face_normals, real_or_nan
 from ._normal_cube import _unit, unit_any_length
 
 __all__ = [
@@ -65,11 +64,8 @@ class Lighting:
             raise PlodError(f"Lighting: direction must be a finite nonzero 3-vector, got {self.direction!r}")
         for k in ("ambient", "diffuse"):
             v = getattr(self, k)
-            try:
-                x = float(v)
-            except (TypeError, ValueError):
-                x = math.nan
-            if isinstance(v, (bool, np.bool_)) or not np.isfinite(x) or x < 0:
+            x = real_or_nan(v)
+            if not (np.isfinite(x) and x >= 0):
                 raise PlodError(f"Lighting: {k} must be a finite number >= 0, got {v!r}")
             object.__setattr__(self, k, x)
         if not isinstance(self.two_sided, (bool, np.bool_)):

@@ -35,6 +35,7 @@ import numpy as np
 
 from pmetric import PlodError
 
+from ._mesh import real_or_nan
 from ._normal_cube import unit_any_length
 
 __all__ = ["View"]
@@ -58,16 +59,6 @@ def _vec3(name: str, x) -> np.ndarray:
     if not np.isfinite(a).all():
         raise PlodError(f"View: {name} must be finite, got {a.tolist()}")
     return _frozen(a)
-
-
-def _number(x) -> float:
-    """``float(x)``, or NaN for what is not a real number (a string, None, a bool), for the range checks."""
-    if isinstance(x, (bool, np.bool_)):
-        return math.nan
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def _positive(name: str, x, *, upper: float | None = None) -> float:
@@ -165,11 +156,11 @@ class View(eqx.Module):
             py = float(display.height) / display.resolution[1]
             fov_deg = math.degrees(2 * math.atan(0.5 * h * py / float(display.distance)))
         self.fov_deg = _positive("fov_deg (vertical field of view, deg)", fov_deg, upper=180.0)
-        ge = _number(gaze_error_deg)
+        ge = real_or_nan(gaze_error_deg)
         if not math.isfinite(ge) or ge < 0:
             raise PlodError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
         self.gaze_error_deg = ge
-        bg = _number(background)
+        bg = real_or_nan(background)
         if not (0.0 <= bg <= 1.0):
             raise PlodError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
         self.background = bg
