@@ -46,6 +46,15 @@ def _concrete(x) -> np.ndarray | None:
         return None
 
 
+def _check_broadcast(who: str, **shapes):
+    """PlodError naming the arguments when their shapes (static, also under jit) do not broadcast."""
+    try:
+        np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        got = " and ".join(f"{k} {tuple(v)}" for k, v in shapes.items())
+        raise PlodError(f"{who}: the shapes of {got} do not broadcast") from None
+
+
 def _check_finite_nonneg(name: str, x, *, positive: bool = False, upper: float | None = None):
     a = _concrete(x)
     if a is None:
@@ -128,6 +137,7 @@ def michelson(l1, l2):
     _check_finite_nonneg("michelson: luminance l1", l1)
     _check_finite_nonneg("michelson: luminance l2", l2)
     l1, l2 = _float(l1), _float(l2)
+    _check_broadcast("michelson", l1=l1.shape, l2=l2.shape)
     den = l1 + l2
     ok = den > 0
     safe = jnp.where(ok, den, 1.0)
@@ -321,7 +331,9 @@ class Display(eqx.Module):
     @jittable
     def visual_angle(self, p, q):
         """Visual angle (deg) between screen points ``p`` and ``q`` (pixel coords, (..., 2)), broadcast."""
-        return jnp.degrees(_angle_between(self.to_3d(p), self.to_3d(q)))
+        a, b = self.to_3d(p), self.to_3d(q)
+        _check_broadcast("Display.visual_angle", p=a.shape[:-1] + (2,), q=b.shape[:-1] + (2,))
+        return jnp.degrees(_angle_between(a, b))
 
     @jittable
     def eccentricity(self, xy, gaze=None):

@@ -209,3 +209,18 @@ def test_input_errors():
         michelson(-1.0, 2.0)
     with pytest.raises(ValueError, match=r"relative_luminance.*\(\.\.\., 3\)"):
         relative_luminance(jnp.ones(2))
+
+
+def test_shape_mismatches_are_one_line_errors():
+    """Arguments whose shapes do not broadcast are refused naming them (before: JAX's 'add got incompatible
+    shapes' TypeError), also under jit; shapes that broadcast still do."""
+    d = Display.default()
+    with pytest.raises(pmetric.PlodError, match=r"michelson: the shapes of l1 \(3,\) and l2 \(4,\) do not broadcast"):
+        michelson(np.ones(3), np.ones(4))
+    with pytest.raises(pmetric.PlodError, match="michelson: the shapes"):
+        jax.jit(michelson)(np.ones(3), np.ones(4))
+    with pytest.raises(pmetric.PlodError, match=r"visual_angle: the shapes of p \(3, 2\) and q \(4, 2\)"):
+        d.eccentricity(np.ones((3, 2)), np.ones((4, 2)))
+    assert michelson(np.ones((3, 1)), np.full(4, 3.0)).shape == (3, 4)
+    np.testing.assert_allclose(michelson(np.ones((3, 1)), np.full(4, 3.0)), 0.5)
+    assert d.visual_angle(np.zeros((3, 1, 2)), np.ones((4, 2))).shape == (3, 4)
