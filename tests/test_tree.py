@@ -398,3 +398,17 @@ def test_load_tree_rejects_arrays_of_the_right_shape_that_are_no_tree(trees, tmp
         optim.load_tree(tmp_path / "bad.npz")
     assert "\n" not in str(exc.value)
     optim.load_tree(p).check()  # the original file loads
+
+
+def test_load_tree_detects_damaged_bytes(trees, tmp_path):
+    """A byte changed anywhere in a tree file's arrays (disk damage in a cache entry) is caught by the .npz
+    members' CRC-32 and refused naming the file, even where the structure would still pass check()
+    (a coordinate or a colour): the tree cache needs no digest of its own."""
+    t = trees[("ico2", "octree")]
+    raw = bytearray(t.save(tmp_path / "t.npz").read_bytes())
+    for at in (len(raw) // 4, len(raw) // 2, 3 * len(raw) // 4):
+        bad = bytearray(raw)
+        bad[at] ^= 0x10
+        (tmp_path / "bad.npz").write_bytes(bytes(bad))
+        with pytest.raises(ValueError, match=r"bad\.npz.*(CRC|corrupt|not a valid|cannot read)"):
+            optim.load_tree(tmp_path / "bad.npz")
