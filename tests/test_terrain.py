@@ -492,3 +492,41 @@ def test_random_valid_scenes_are_crack_free_and_bounded():
         assert len(terrain_mesh(hf, culled)[1]) == culled.triangles
 
     check()
+
+
+def test_bound_pass_answers_as_the_float64_test_at_any_scale(monkeypatch):
+    """hypothesis over monotone.py's scenes with every length scaled by 1e-7 .. 3e8 (the error budget is in
+    angles, so it must not depend on units), any criteria, imposed or measured velocity, display cap or
+    none, time steps 1 ms .. 1 s: the refinement with the compiled float32 bound pass on every level splits
+    exactly what the float64 test alone splits."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from optim import _terrain as T
+
+    _scripts_on_path()
+    from monotone import scene
+
+    small = T._SMALL_LEVELS
+
+    @settings(max_examples=15, deadline=None, derandomize=True)
+    @given(seed=st.integers(0, 2**31 - 1), log_k=st.floats(-7.0, 8.5), flags=st.integers(0, 63),
+           v=st.floats(0.0, 200.0), log_dt=st.floats(-3.0, 0.0))
+    def check(seed, log_k, flags, v, log_dt):
+        hf0, cam0, prev0, xi = scene(np.random.default_rng(seed), sizes=(17, 33))
+        k = 10.0 ** log_k
+        hf = Heightfield(hf0.heights * k, hf0.spacing * k)
+        cams = [TerrainCamera(np.asarray(c.eye) * k, c.forward, fov_deg=c.fov_deg, gaze_deg=c.gaze_deg)
+                for c in (cam0, *prev0)]
+        crit = TerrainCriteria(periphery=bool(flags & 1), velocity=bool(flags & 2), cull=bool(flags & 4),
+                               xi=None if flags & 8 else xi, velocity_deg_s=v if flags & 16 else None)
+        got = []
+        for bound_min in (0, 1 << 40):  # the bound pass on every level; the float64 test alone
+            monkeypatch.setattr(T, "_BOUND_MIN", bound_min)
+            monkeypatch.setattr(T, "_SMALL_LEVELS", 0 if flags & 32 else small)  # coarse levels batched or not
+            got.append(refine_terrain(hf, cams[0], crit, tuple(cams[1:]), dt_s=10.0 ** log_dt))
+        assert got[0].triangles == got[1].triangles
+        for a, b in zip(got[0].split, got[1].split):
+            np.testing.assert_array_equal(a, b)
+
+    check()
