@@ -274,26 +274,34 @@ class TerrainLOD:
 
 
 _ACUITY_CACHE: dict = {}
+_ACUITY_JIT = None  # the jitted H'(model, e, v) of every xi (see _acuity_fn)
 _MIN_BUCKET, _CHUNK = 64, 1 << 16  # padded lengths 64, 128, ..., 65536; longer inputs go in chunks
 
 
 def _acuity_fn(xi):
-    """A jitted ``H'(e, v)`` of :class:`pmetric.ReddyAcuity` with display cap ``xi`` (cached), compiled for
-    every padded length when first made, so no frame pays for a compilation."""
+    """``H'(e, v)`` of :class:`pmetric.ReddyAcuity` with display cap ``xi`` (cached per xi): one jitted
+    function of (model, e, v) serves every xi (the model is an argument, its constants traced, so a new
+    display cap costs no compilation), compiled for every padded length on the process's first call, so no
+    frame pays for a compilation."""
+    global _ACUITY_JIT
     key = None if xi is None else float(xi)
     fn = _ACUITY_CACHE.get(key)
     if fn is None:
+        import functools
+
         import jax
 
         import pmetric
 
         model = pmetric.ReddyAcuity(xi=key)
-        fn = jax.jit(lambda e, v: jax.numpy.exp(model.log_acuity(e, v)))
-        b = _MIN_BUCKET
-        while b <= _CHUNK:
-            fn(np.zeros(b, np.float32), np.zeros(b, np.float32)).block_until_ready()
-            b *= 2
-        _ACUITY_CACHE[key] = fn
+        if _ACUITY_JIT is None:
+            jitted = jax.jit(lambda m, e, v: jax.numpy.exp(m.log_acuity(e, v)))
+            b = _MIN_BUCKET
+            while b <= _CHUNK:
+                jitted(model, np.zeros(b, np.float32), np.zeros(b, np.float32)).block_until_ready()
+                b *= 2
+            _ACUITY_JIT = jitted
+        fn = _ACUITY_CACHE[key] = functools.partial(_ACUITY_JIT, model)
     return fn
 
 
