@@ -82,12 +82,19 @@ def check_inputs(_method: str, **arrays):
                 raise PlodError(f"{_method}: {name} must be >= 0 (got min {xn.min()!r})")
         shapes[name] = xa.shape
         out.append(xa)
-    try:
-        np.broadcast_shapes(*shapes.values())
-    except ValueError:
-        desc = ", ".join(f"{k} {v}" for k, v in shapes.items())
-        raise PlodError(f"{_method}: argument shapes do not broadcast: {desc}") from None
+    check_broadcast(_method, **shapes)
     return out
+
+
+def check_broadcast(who: str, **shapes) -> tuple:
+    """The shape the arguments' ``shapes`` broadcast to; PlodError naming them when they do not (shapes
+    are static, so this works under jit too)."""
+    try:
+        return np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        items = [f"{k} {tuple(v)}" for k, v in shapes.items()]
+        got = items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+        raise PlodError(f"{who}: the shapes of {got} do not broadcast") from None
 
 
 def fill_nan(x, default):

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._base import jittable
+from ._base import check_broadcast, jittable
 from ._errors import PlodError
 
 __all__ = ["Display", "michelson", "michelson_range", "relative_luminance", "srgb_to_linear",
@@ -44,15 +44,6 @@ def _concrete(x) -> np.ndarray | None:
         return np.asarray(x)
     except Exception:  # noqa: BLE001 - anything that is not array-like is left to jnp
         return None
-
-
-def _check_broadcast(who: str, **shapes):
-    """PlodError naming the arguments when their shapes (static, also under jit) do not broadcast."""
-    try:
-        np.broadcast_shapes(*shapes.values())
-    except ValueError:
-        got = " and ".join(f"{k} {tuple(v)}" for k, v in shapes.items())
-        raise PlodError(f"{who}: the shapes of {got} do not broadcast") from None
 
 
 def _check_finite_nonneg(name: str, x, *, positive: bool = False, upper: float | None = None):
@@ -137,7 +128,7 @@ def michelson(l1, l2):
     _check_finite_nonneg("michelson: luminance l1", l1)
     _check_finite_nonneg("michelson: luminance l2", l2)
     l1, l2 = _float(l1), _float(l2)
-    _check_broadcast("michelson", l1=l1.shape, l2=l2.shape)
+    check_broadcast("michelson", l1=l1.shape, l2=l2.shape)
     den = l1 + l2
     ok = den > 0
     safe = jnp.where(ok, den, 1.0)
@@ -332,7 +323,7 @@ class Display(eqx.Module):
     def visual_angle(self, p, q):
         """Visual angle (deg) between screen points ``p`` and ``q`` (pixel coords, (..., 2)), broadcast."""
         a, b = self.to_3d(p), self.to_3d(q)
-        _check_broadcast("Display.visual_angle", p=a.shape[:-1] + (2,), q=b.shape[:-1] + (2,))
+        check_broadcast("Display.visual_angle", p=a.shape[:-1] + (2,), q=b.shape[:-1] + (2,))
         return jnp.degrees(_angle_between(a, b))
 
     @jittable

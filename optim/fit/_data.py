@@ -46,6 +46,7 @@ from typing import Iterable
 import numpy as np
 
 from pmetric import PlodError, atomic_path
+from pmetric._base import check_broadcast
 
 from ._csv import parse_csv
 
@@ -154,11 +155,7 @@ class CalibrationData:
             raise PlodError(f"from_arrays: numeric input is not numeric ({exc})") from None
         labels = {k: np.asarray(v, dtype=np.str_) for k, v in
                   {"dataset": dataset, "observer": observer, "stimulus": stimulus, "source": source}.items()}
-        try:
-            shape = np.broadcast_shapes(*(a.shape for a in arrs.values()), *(a.shape for a in labels.values()))
-        except ValueError:
-            raise PlodError("from_arrays: input shapes do not broadcast: "
-                             + ", ".join(f"{k}{a.shape}" for k, a in {**arrs, **labels}.items())) from None
+        shape = check_broadcast("from_arrays", **{k: a.shape for k, a in {**arrs, **labels}.items()})
         if len(shape) > 1:
             raise PlodError(f"from_arrays: inputs must be scalars or 1-D, broadcast shape is {shape}")
         arrs = {k: np.broadcast_to(a, shape).reshape(-1) for k, a in arrs.items()}

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from pmetric import PlodError
+from pmetric._base import check_broadcast
 
 from ._data import CalibrationData
 
@@ -59,11 +60,7 @@ class Stimuli:
 
     def __post_init__(self):
         arrs = {k: np.asarray(getattr(self, k), dtype=np.float64) for k in ("f", "e", "v", "luminance", "area")}
-        try:
-            shape = np.broadcast_shapes(*(a.shape for a in arrs.values()))
-        except ValueError:
-            raise PlodError("Stimuli: shapes do not broadcast: "
-                             + ", ".join(f"{k}{a.shape}" for k, a in arrs.items())) from None
+        shape = check_broadcast("Stimuli", **{k: a.shape for k, a in arrs.items()})
         if len(shape) > 1:
             raise PlodError(f"Stimuli: arrays must be scalars or 1-D, broadcast shape is {shape}")
         for k, a in arrs.items():
