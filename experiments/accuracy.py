@@ -359,8 +359,9 @@ def write_report(rows, cfg, command, out, images=()):
          f"mesh (seed {cfg['seed']}), object {cfg['object_deg']:g} deg, gaze offsets "
          f"{', '.join(f'{g:g}' for g in cfg['gaze_offsets_deg'])} deg from its centre, gaze error "
          f"{cfg['gaze_error_deg']:g} deg. None of these meshes or views is used by the tests.\n"]
-    if absent_line(cfg):
-        L.append(absent_line(cfg))
+    absent = absent_line(cfg)
+    if absent:
+        L.append(absent)
     if cfg.get("face_cull"):
         L.append(f"**Face culling on**: plod's cuts (imperceptible, perceptual, size, geometric, models) are drawn "
                  f"without the triangles that face away from the eye by more than {cfg['face_cull_margin_deg']:g} deg "

@@ -270,8 +270,9 @@ def run_config(path, out=None, progress=None) -> Path:
             "recomputed per frame; the peers simplified once at the perceptual cut's mean drawn count. Video: the "
             "clip judged by FovVideoVDP with the fixation held at the gaze; stills: one frame in "
             f"{cfg['still_every']} judged alone. Meshes in no test and not in the accuracy sweep.", ""]
-    if absent_line(cfg):
-        head += [absent_line(cfg)]
+    absent = absent_line(cfg)
+    if absent:
+        head.append(absent)
     atomic_write_text(out / "report.md", "\n".join(head + summarise(rows)))
     _plot(rows, out / "video_vs_still.png")
     save_run_info(out, cfg, cfg["seed"], command)
