@@ -95,21 +95,16 @@ def run(args) -> int:
     if args.cv is not None:
         if args.method != "lm":
             raise PlodError("--cv cross-validates least-squares fits; it cannot be combined with --method mcmc")
-        try:  # a bad --cv is refused before any work, by its flag's name
-            optim.fit._cv.parse_cv(args.cv)
-        except PlodError as exc:
-            raise PlodError(str(exc).replace("cv must be", "--cv must be", 1)) from None
+        optim.fit._cv.parse_cv(args.cv, arg="--cv")  # a bad --cv is refused before any work
     data = optim.fit.CalibrationData.from_csv(data_path)
     model = make_model(args.model)
     fit = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else None
     rows = None if args.all_rows else "auto"
     from optim.fit._problem import Problem
 
-    try:  # host-side layout only; the library's argument named as the command's flag
-        prob = Problem(model, data, fit=fit, multipliers=args.multipliers, rows=rows)
-    except PlodError as exc:
-        raise PlodError(str(exc).replace("or fit= fewer", "or fewer --fit fields").replace("fit= ", "--fit ")) \
-            from None
+    optim.fitted_fields(model, fit, arg="--fit")  # unknown or empty --fit names, by the flag's name
+    # host-side layout only; the row count is checked below, naming the flags
+    prob = Problem(model, data, fit=fit, multipliers=args.multipliers, rows=rows, min_rows=False)
     n_in, n_used, n_free = len(data), int(prob.mask.sum()), int(prob.static.n_free)
     n_f0 = int(((np.asarray(data.f) == 0) & ~prob.mask).sum())
     dropped = (f"used {n_used} of {n_in} rows: dropped {n_in - n_used} the model cannot express"

@@ -206,6 +206,7 @@ def test_cli_cv_json_and_table_equal_the_library(tmp_path, capsys, noisy):
     (["--cv", "1"], "--cv must be"), (["--cv", "abc"], "--cv must be"), (["--cv", "-3"], "--cv must be"),
     (["--cv", "0"], "--cv must be"), (["--cv", "500"], "500 folds need"),
     (["--fit", "nope"], "--fit names unknown fields ['nope']"), (["--fit", "gain,nope"], "--fit names unknown"),
+    (["--fit", ","], "--fit is empty"),
     (["--cv", "dataset", "--method", "mcmc"], "cannot be combined"),
     (["--prior", "lots"], "--prior must be"), (["--prior-strength", "-1"], "--prior-strength must be"),
     (["--prior", "cv", "--prior-strength", "3"], "disagree"),

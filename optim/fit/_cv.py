@@ -146,8 +146,9 @@ class CVResult:
 
 
 # ----------------------------------------------------------------------------- folds
-def parse_cv(cv) -> tuple[str, int]:
-    """``("dataset", 0)`` or ``("k-fold", k)`` from ``cv`` = "dataset" or an int (or digit string) k >= 2."""
+def parse_cv(cv, *, arg: str = "cv") -> tuple[str, int]:
+    """``("dataset", 0)`` or ``("k-fold", k)`` from ``cv`` = "dataset" or an int (or digit string) k >= 2;
+    ``arg``: how an error names ``cv`` (a command line passes its flag)."""
     if isinstance(cv, str) and cv.strip().lower() in ("dataset", "datasets", "lodo"):
         return "dataset", 0
     k = None
@@ -156,7 +157,7 @@ def parse_cv(cv) -> tuple[str, int]:
     elif isinstance(cv, str) and cv.strip().lstrip("+").isdigit():
         k = int(cv.strip())
     if k is None or k < 2:
-        raise PlodError(f"cv must be 'dataset' (leave one dataset out) or a number of folds k >= 2, got {cv!r}")
+        raise PlodError(f"{arg} must be 'dataset' (leave one dataset out) or a number of folds k >= 2, got {cv!r}")
     return "k-fold", k
 
 

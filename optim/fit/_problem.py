@@ -104,28 +104,30 @@ def bounds_kind(bounds) -> tuple[int, float, float]:
     return IDENT, -math.inf, math.inf
 
 
-def fitted_fields(model, fit: Sequence[str] | None = None) -> list[str]:
+def fitted_fields(model, fit: Sequence[str] | None = None, *, arg: str = "fit=") -> list[str]:
     """Names (dotted paths) of the array leaves of ``model`` that fitting adjusts.
 
     All floating array leaves unless ``fit`` restricts them (top-level field names or dotted paths).
+    ``arg``: how an error names ``fit`` (a command line passes its flag, e.g. ``"--fit"``).
     """
-    return [leaf.name for leaf in layout(model, fit)[2]]
+    return [leaf.name for leaf in layout(model, fit, arg=arg)[2]]
 
 
-def _check_fit_names(model, fit, names):
+def _check_fit_names(model, fit, names, arg="fit="):
     if isinstance(fit, str):
         fit = [fit]
     unknown = [n for n in fit if n not in names and not any(m.split(".")[0] == n for m in names)]
     if unknown:
-        raise PlodError(f"fit= names unknown fields {unknown} of {type(model).__name__}; "
+        raise PlodError(f"{arg} names unknown fields {unknown} of {type(model).__name__}; "
                         f"fittable fields: {names}")
     if not fit:
-        raise PlodError("fit= is empty: name at least one field to fit")
+        raise PlodError(f"{arg} is empty: name at least one field to fit")
     return fit
 
 
-def layout(model, fit):
-    """``(treedef, static part, spec (tuple of Leaf), float64 leaves, params)`` of ``model``."""
+def layout(model, fit, arg="fit="):
+    """``(treedef, static part, spec (tuple of Leaf), float64 leaves, params)`` of ``model``; ``arg``: how
+    an error names ``fit``."""
     if not isinstance(model, eqx.Module):
         raise PlodError(f"model must be a pmetric CSF model (an equinox Module), got {type(model).__name__}")
     if not hasattr(model, "stimulus_sensitivity"):
@@ -136,7 +138,7 @@ def layout(model, fit):
     if not names:
         raise PlodError(f"{type(model).__name__} has no floating array fields to fit")
     if fit is not None:
-        fit = _check_fit_names(model, fit, names)
+        fit = _check_fit_names(model, fit, names, arg)
     leaves, spec = [], []
     for i, ((path, leaf), name) in enumerate(zip(with_path, names)):
         field = name.split(".")[0].split("[")[0]
