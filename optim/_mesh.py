@@ -183,7 +183,7 @@ def validated_mesh_and_normals(vertices, faces, colors=None, *, name: str = "mes
 def real_or_nan(x) -> float:
     """``float(x)``, or NaN for what is not a real number (a string, None, a bool), so that one range check
     (``not (lo <= v < hi)``) refuses all of them (shared by the views', lights' and margins' checks)."""
-    if isinstance(x, (bool, np.bool_)):
+    if isinstance(x, (bool, np.bool_, str, bytes)) or np.ndim(x) != 0:  # float("2") and float(array([2.])) work
         return math.nan
     try:
         return float(x)

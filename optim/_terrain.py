@@ -28,11 +28,15 @@ spacing, y = height, z = row spacing; right-handed, y up).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
 from pmetric import PlodError
+
+from ._mesh import real_or_nan
+from ._normal_cube import unit_any_length
 
 __all__ = ["Heightfield", "TerrainCamera", "TerrainCriteria", "TerrainLOD", "refine_terrain",
            "terrain_mesh", "full_mesh", "fractal_heightfield", "crop_heightfield"]
@@ -53,8 +57,8 @@ class Heightfield:
     """
 
     def __init__(self, heights, spacing: float = 1.0):
-        try:
-            h = np.asarray(heights, dtype=np.float64)
+        try:  # an own copy: the pyramid below must describe the heights the mesh is made from
+            h = np.array(heights, dtype=np.float64)
         except (TypeError, ValueError):
             raise PlodError("terrain: the heights must be numbers (an (N, N) array)") from None
         if h.size == 0:
@@ -69,13 +73,14 @@ class Heightfield:
         if bad.any():
             r, c = np.argwhere(bad)[0]
             raise PlodError(f"terrain: {int(bad.sum())} non-finite heights (NaN or inf), first at row {r}, column {c}")
-        sp = float(spacing)
+        sp = real_or_nan(spacing)
         if not (math.isfinite(sp) and sp > 0):
             raise PlodError(f"terrain: spacing must be a positive number of metres, got {spacing!r}")
         top = float(np.abs(h).max())
         if top > _MAX_COORD or sp * (n - 1) > _MAX_COORD:
             raise PlodError(f"terrain: heights and the grid's extent must stay within {_MAX_COORD:g} m, got heights "
                             f"up to {top:g} m and an extent of {sp * (n - 1):g} m")
+        h.flags.writeable = False
         self.heights, self.spacing, self.n, self.levels = h, sp, n, L
         self.err, self.zmin, self.zmax = _pyramid(h, L)
 
@@ -92,6 +97,9 @@ class Heightfield:
 def _pyramid(h, L):
     """Per level: (nested max error, min height, max height) of each square, each (2^l, 2^l)."""
     n = h.shape[0]
+    # a plane's samples differ from its interpolation by a few roundings of the largest height (the
+    # weights k / s are inexact): 16 units in the last place of it count as flat, in any length unit
+    flat = 16 * np.finfo(np.float64).eps * float(np.abs(h).max())
     own = []
     for l in range(L + 1):
         s = 2 ** (L - l)
@@ -109,7 +117,7 @@ def _pyramid(h, L):
         upper = h00 + r * (h10 - h00) + c * (h11 - h10)  # r > c: triangle (0,0) (1,0) (1,1)
         plane = np.where(c >= r, lower, upper)
         e = np.abs(blk - plane).max(axis=(2, 3))
-        own.append(np.where(e > 1e-9 * (1.0 + np.abs(h).max()), e, 0.0))  # rounding of a plane is flat
+        own.append(np.where(e > flat, e, 0.0))  # rounding of a plane is flat
     err = [None] * (L + 1)
     err[L] = own[L]
     for l in range(L - 1, -1, -1):
@@ -128,15 +136,23 @@ def _pyramid(h, L):
     return err, zmin, zmax
 
 
+def _whole(name: str, x, lo: int) -> int:
+    """``x`` as an int >= ``lo`` (an int or NumPy integer, not a bool), or PlodError naming ``name``."""
+    if not isinstance(x, (int, np.integer)) or isinstance(x, (bool, np.bool_)) or x < lo:
+        raise PlodError(f"terrain: {name} must be an integer >= {lo}, got {x!r}")
+    return int(x)
+
+
 def crop_heightfield(heights, size: int, row: int | None = None, col: int | None = None) -> np.ndarray:
     """The ``size x size`` window of ``heights`` at (row, col) (default: centred). Raises PlodError
     when it does not fit."""
     h = np.asarray(heights)
+    size = _whole("crop size", size, 1)
     if h.ndim != 2 or h.shape[0] < size or h.shape[1] < size:
         raise PlodError(f"terrain: cannot crop {size} x {size} from a grid of shape {h.shape}")
-    r = (h.shape[0] - size) // 2 if row is None else int(row)
-    c = (h.shape[1] - size) // 2 if col is None else int(col)
-    if r < 0 or c < 0 or r + size > h.shape[0] or c + size > h.shape[1]:
+    r = (h.shape[0] - size) // 2 if row is None else _whole("crop row", row, 0)
+    c = (h.shape[1] - size) // 2 if col is None else _whole("crop column", col, 0)
+    if r + size > h.shape[0] or c + size > h.shape[1]:
         raise PlodError(f"terrain: crop at row {r}, column {c} of size {size} leaves the grid {h.shape}")
     return h[r:r + size, c:c + size]
 
@@ -145,22 +161,38 @@ def fractal_heightfield(n: int, *, seed: int = 0, beta: float = 2.2, relief: flo
                         dtype=np.float64) -> np.ndarray:
     """Spectral-synthesis fractal terrain (fBm): white noise filtered by ``1 / f^(beta/2)`` amplitude
     (power spectrum ``f^-beta``) and an inverse FFT, ``n x n`` samples, seeded; scaled so its heights
-    span ``relief`` (heightfield units). ``beta`` 2..3 is terrain-like [PS88] (Voss)."""
-    if n < 2:
-        raise PlodError(f"fractal_heightfield: n must be >= 2, got {n}")
+    span ``relief`` (heightfield units, > 0), returned as the floating ``dtype``. ``beta`` 2..3 is
+    terrain-like [PS88] (Voss). PlodError for a bad argument or a ``beta`` whose spectrum overflows."""
+    n, seed = _whole("fractal_heightfield n", n, 2), _whole("fractal_heightfield seed", seed, 0)
+    b, rel = real_or_nan(beta), real_or_nan(relief)
+    if not math.isfinite(b):
+        raise PlodError(f"terrain: fractal_heightfield beta must be a finite number, got {beta!r}")
+    if not (math.isfinite(rel) and rel > 0):
+        raise PlodError(f"terrain: fractal_heightfield relief must be a finite number > 0, got {relief!r}")
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt is None or not np.issubdtype(dt, np.floating):
+        raise PlodError(f"terrain: fractal_heightfield dtype must be a floating type, got {dtype!r}")
     rng = np.random.default_rng(seed)
     m = n - 1 if n > 2 else n  # periodic on (n-1), the last row/column repeats the first
     fx = np.fft.fftfreq(m)[:, None]
     fy = np.fft.rfftfreq(m)[None, :]
     f = np.hypot(fx, fy)
     f[0, 0] = 1.0
-    amp = f ** (-beta / 2)
-    amp[0, 0] = 0.0
-    spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
-    z = np.fft.irfft2(spec, s=(m, m)).astype(dtype)
-    z = np.pad(z, ((0, n - m), (0, n - m)), mode="wrap")
-    z -= z.min()
-    return z * (relief / max(float(z.max()), 1e-300))
+    with np.errstate(over="ignore", invalid="ignore"):
+        amp = f ** (-b / 2)
+        amp[0, 0] = 0.0
+        spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
+        z = np.fft.irfft2(spec, s=(m, m))
+        z = np.pad(z, ((0, n - m), (0, n - m)), mode="wrap")
+        z -= z.min()
+        z *= rel / max(float(z.max()), 1e-300)  # in float64, then the requested type
+        out = z.astype(dt)
+    if not np.isfinite(out).all():
+        raise PlodError(f"terrain: fractal_heightfield with beta={b:g}, relief={rel:g} gives non-finite heights")
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- camera
@@ -209,11 +241,10 @@ class TerrainCamera:
 
     def rotation(self) -> np.ndarray:
         """(3, 3) world -> camera rows (right, up, back)."""
-        f = np.asarray(self.forward, float)
-        f = f / np.linalg.norm(f)
-        r = np.cross(f, np.asarray(self.up, float))
+        f = unit_any_length(self.forward)  # forward and up of any length (1e-300, 1e300)
+        r = np.cross(f, unit_any_length(self.up))
         nr = np.linalg.norm(r)
-        if nr < 1e-12:
+        if not nr >= 1e-12:
             raise PlodError("terrain: camera up is parallel to its forward direction")
         r /= nr
         return np.stack([r, np.cross(r, f), -f])
@@ -249,15 +280,14 @@ class TerrainCriteria:
         for name in ("size", "periphery", "velocity", "cull"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise PlodError(f"terrain: TerrainCriteria.{name} must be True or False, got {getattr(self, name)!r}")
-        for name, strict in (("xi", True), ("velocity_deg_s", False), ("tol", False)):
+        # xi and the velocity within what the float32 acuity model holds (ReddyAcuity.xi >= 1e-6)
+        for name, lo, hi in (("xi", 1e-6, 1e30), ("velocity_deg_s", 0.0, 1e30), ("tol", 0.0, math.inf)):
             x = getattr(self, name)
             if x is None and name != "tol":
                 continue
-            ok = isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and \
-                math.isfinite(float(x)) and (float(x) > 0 if strict else float(x) >= 0)
-            if not ok:
-                raise PlodError(f"terrain: TerrainCriteria.{name} must be a finite number {'>' if strict else '>='} "
-                                f"0{' or None' if name != 'tol' else ''}, got {x!r}")
+            if not lo <= real_or_nan(x) <= hi or not math.isfinite(real_or_nan(x)):
+                raise PlodError(f"terrain: TerrainCriteria.{name} must be a finite number in [{lo:g}, {hi:g}]"
+                                f"{' or None' if name != 'tol' else ''}, got {x!r}")
 
 
 @dataclass
@@ -632,9 +662,16 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     the float64 test's geometry and the leaf pass is compiled (``optim._terrain_bounds``, numba; the first
     call of a process compiles or loads it from numba's cache).
     """
+    _check_args(hf, camera=camera, criteria=criteria)
     L = hf.levels
-    if not (dt_s > 0):
-        raise PlodError(f"terrain: dt_s must be a positive time step in seconds, got {dt_s!r}")
+    dt = real_or_nan(dt_s)
+    if not (0 < dt < math.inf and math.isfinite(180.0 / math.pi / dt)):  # and its velocity scale 1 / dt
+        raise PlodError(f"terrain: dt_s must be a finite positive time step in seconds, got {dt_s!r}")
+    dt_s = dt
+    if isinstance(previous, TerrainCamera) or not isinstance(previous, Iterable) or isinstance(previous, str):
+        raise PlodError(f"terrain: previous must be a sequence of TerrainCamera (most recent first), got "
+                        f"{type(previous).__name__}")
+    previous = tuple(previous)  # once: a generator would be used up by the check below
     for k, c in enumerate(previous):
         if not isinstance(c, TerrainCamera):
             raise PlodError(f"terrain: previous[{k}] must be a TerrainCamera, got {type(c).__name__}")
@@ -668,6 +705,19 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
         cand = _up(ok)
     _restrict(split)
     return _leaves(hf, camera, R, criteria, split, culled)
+
+
+def _check_args(hf, **named):
+    """PlodError unless ``hf`` is a Heightfield and each of ``named`` (camera, criteria, lod) is of its kind;
+    a ``lod`` must be a refinement of a heightfield of ``hf``'s size."""
+    kinds = {"hf": Heightfield, "camera": TerrainCamera, "criteria": TerrainCriteria, "lod": TerrainLOD}
+    for name, x in {"hf": hf, **named}.items():
+        if not isinstance(x, kinds[name]):
+            raise PlodError(f"terrain: {name} must be a {kinds[name].__name__}, got {type(x).__name__}")
+    lod = named.get("lod")
+    if lod is not None and lod.levels != hf.levels:
+        raise PlodError(f"terrain: the refinement is of a {2 ** lod.levels + 1}-sample grid, the heightfield has "
+                        f"{hf.n} samples per side")
 
 
 def _inherit(parent_state):
@@ -744,6 +794,7 @@ def straddle_triangles(hf: Heightfield, camera: TerrainCamera, lod: TerrainLOD) 
     at least 8, a fan at most 8). Only a straddling leaf can lose: unsplit it is drawn, split its
     children may all be culled. So adding a criterion adds at most this many triangles; with ``cull``
     off, none (``reports/terrain/scripts/monotone.py`` measures how often and how much it adds)."""
+    _check_args(hf, camera=camera, lod=lod)
     R = camera.rotation()
     tri = 0
     for l, (rc, fan) in enumerate(zip(lod.drawn, lod.fans)):
@@ -757,6 +808,7 @@ def straddle_triangles(hf: Heightfield, camera: TerrainCamera, lod: TerrainLOD) 
 def terrain_mesh(hf: Heightfield, lod: TerrainLOD):
     """The drawn leaves as a triangle mesh: (vertices (V, 3) world, faces (F, 3), grid (V, 2) (row,
     column) sample indices). Faces wind counter-clockwise seen from above (+y)."""
+    _check_args(hf, lod=lod)
     L = hf.levels
     faces = []
     for l in range(L + 1):

@@ -528,9 +528,9 @@ def exact_terms(X, Y, Z, inv, eye, R, g, eyes, turns, periphery, measured, scale
         D = np.empty((n, 3))
         for k in range(len(eyes)):
             _unit_dirs(X, Y, Z, eyes[k], turns[k], D)
-            for t in range(n):
-                c = prev[t, 0] * D[t, 0] + prev[t, 1] * D[t, 1] + prev[t, 2] * D[t, 2]
-                vel[t] += math.degrees(math.acos(min(max(c, -1.0), 1.0)))
+            for t in range(n):  # atan2, not acos of the dot product: exact 0 for a still corner, and
+                # no rounding noise of ~1e-6 deg near 0 that a short time step would make a velocity
+                vel[t] += _deg_between(prev[t, 0], prev[t, 1], prev[t, 2], D[t, 0], D[t, 1], D[t, 2])
             prev, D = D, prev
         for t in range(n):
             vel[t] = vel[t] * scale

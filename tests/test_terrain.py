@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal_heightfield, full_mesh,
-                            refine_terrain, straddle_triangles, terrain_mesh)
+from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, crop_heightfield, fractal_heightfield,
+                            full_mesh, refine_terrain, straddle_triangles, terrain_mesh)
 from pmetric import PlodError
 
 ALL = TerrainCriteria(xi=4.0)
@@ -175,13 +175,47 @@ _EYE, _FWD = np.array([16.0, 20.0, -5.0]), np.array([0.0, -0.3, 1.0])
     (lambda: TerrainCamera(_EYE, _FWD, fov_deg=(400.0, 30.0)), r"fov_deg must be in \(0, 360\]"),
     (lambda: TerrainCamera(_EYE, _FWD, fov_deg=(float("nan"), 30.0)), "fov_deg must be 2 finite numbers"),
     (lambda: TerrainCamera(_EYE, _FWD, gaze_deg=(0.0, 120.0)), r"gaze_deg must be in \[-180, 180\]"),
-    (lambda: TerrainCriteria(xi=0.0), "xi must be a finite number > 0"),
-    (lambda: TerrainCriteria(velocity_deg_s=-5.0), "velocity_deg_s must be a finite number >= 0"),
-    (lambda: TerrainCriteria(velocity_deg_s=float("nan")), "velocity_deg_s must be a finite number >= 0"),
-    (lambda: TerrainCriteria(tol=float("nan")), "tol must be a finite number >= 0"),
+    (lambda: TerrainCriteria(xi=0.0), r"xi must be a finite number in \[1e-06, 1e\+30\]"),
+    (lambda: TerrainCriteria(xi=1e-300), r"xi must be a finite number in \[1e-06"),  # was refused late, as ReddyAcuity.xi
+    (lambda: TerrainCriteria(xi=1e308), r"xi must be a finite number in \[1e-06"),
+    (lambda: TerrainCriteria(velocity_deg_s=-5.0), r"velocity_deg_s must be a finite number in \[0, 1e\+30\]"),
+    (lambda: TerrainCriteria(velocity_deg_s=float("nan")), "velocity_deg_s must be a finite number in"),
+    (lambda: TerrainCriteria(tol=float("nan")), "tol must be a finite number in"),
     (lambda: TerrainCriteria(cull="yes"), "cull must be True or False"),
     (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), previous=(1,)),
      r"previous\[0\] must be a TerrainCamera"),
+    # 2026-12-07 fuzz round: raw TypeError / AttributeError / ValueError before
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), previous=None),
+     "previous must be a sequence of TerrainCamera"),
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD),
+                            previous=TerrainCamera(_EYE, _FWD)), "previous must be a sequence of TerrainCamera"),
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), None),
+     "criteria must be a TerrainCriteria"),
+    (lambda: refine_terrain(np.zeros((9, 9)), TerrainCamera(_EYE, _FWD)), "hf must be a Heightfield"),
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), dt_s="0.1"),
+     "dt_s must be a finite positive time step"),
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), dt_s=1e-310),
+     "dt_s must be a finite positive time step"),  # 1 / dt overflowed: a NaN velocity, 2 triangles
+    (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), dt_s=float("inf")),
+     "dt_s must be a finite positive time step"),
+    (lambda: Heightfield(np.zeros((9, 9)), "2"), "spacing must be a positive number"),
+    (lambda: Heightfield(np.zeros((9, 9)), np.array([2.0])), "spacing must be a positive number"),
+    (lambda: Heightfield(np.zeros((9, 9)), 1 + 2j), "spacing must be a positive number"),
+    (lambda: TerrainCamera(_EYE, _FWD, up=_FWD * 3).rotation(), "up is parallel to its forward"),
+    (lambda: terrain_mesh(Heightfield(np.zeros((17, 17)), 1.0),
+                                refine_terrain(Heightfield(np.zeros((33, 33)), 1.0), TerrainCamera(_EYE, _FWD))),
+     "the refinement is of a 33-sample grid, the heightfield has 17"),  # was 0 faces, silently
+    (lambda: straddle_triangles(Heightfield(np.zeros((33, 33)), 1.0), TerrainCamera(_EYE, _FWD),
+                                refine_terrain(Heightfield(np.zeros((17, 17)), 1.0), TerrainCamera(_EYE, _FWD))),
+     "the refinement is of a 17-sample grid"),  # was an IndexError
+    (lambda: fractal_heightfield(17.0), "n must be an integer >= 2"),
+    (lambda: fractal_heightfield(17, seed=-1), "seed must be an integer >= 0"),
+    (lambda: fractal_heightfield(17, relief=-5.0), "relief must be a finite number > 0"),  # was an inverted terrain
+    (lambda: fractal_heightfield(65, beta=1e6), "gives non-finite heights"),
+    (lambda: fractal_heightfield(65, dtype=np.int16), "dtype must be a floating type"),  # was all zeros
+    (lambda: crop_heightfield(np.zeros((9, 9)), 5.0), "crop size must be an integer"),
+    (lambda: crop_heightfield(np.zeros((9, 9)), -3), "crop size must be an integer >= 1"),  # was a (0, 0) grid
+    (lambda: crop_heightfield(np.zeros((9, 9)), 3, row=-1), "crop row must be an integer >= 0"),
 ])
 def test_bad_cameras_and_criteria(make, msg):
     with pytest.raises(PlodError, match=msg) as err:
@@ -530,3 +564,77 @@ def test_bound_pass_answers_as_the_float64_test_at_any_scale(monkeypatch):
             np.testing.assert_array_equal(a, b)
 
     check()
+
+
+# ------------------------------------------------------------------- 2026-12-07 fuzz round: silent answers
+def _scene33():
+    z = fractal_heightfield(33, seed=1, relief=8.0)
+    cam = TerrainCamera(np.array([16.0, 20.0, -5.0]), np.array([0.0, -0.3, 1.0]))
+    prev = tuple(TerrainCamera(cam.eye - [k, 0.3 * k, 0], np.array([0.2 * k, -0.3, 1.0])) for k in (1, 2, 3))
+    return z, cam, prev
+
+
+def test_previous_cameras_may_come_from_a_generator():
+    """A generator of previous cameras was used up by the type check: the velocity then came out 0."""
+    z, cam, prev = _scene33()
+    hf, crit = Heightfield(z, 1.0), TerrainCriteria(xi=0.3, periphery=False)
+    want = refine_terrain(hf, cam, crit, prev)
+    assert want.triangles < refine_terrain(hf, cam, crit, ()).triangles  # the velocity bites here
+    assert refine_terrain(hf, cam, crit, (c for c in prev)).triangles == want.triangles
+
+
+def test_flatness_is_rounding_in_any_unit_and_offset():
+    """Flat meant an error below 1e-9 (1 + max |h|): relief at 1e-9 m units, or 1 mm on a 1e6 m base, was
+    flattened (2 triangles for 2048). Now only rounding of a plane counts as flat, in any unit."""
+    z, cam, _ = _scene33()
+    want = refine_terrain(Heightfield(z, 1.0), cam, NONE).triangles
+    assert want == 2048
+    for k in (1e-9, 1e-10, 2.0 ** -40):  # the whole scene in other length units
+        hf = Heightfield(z * k, k)
+        got = refine_terrain(hf, TerrainCamera(cam.eye * k, cam.forward), NONE)
+        assert got.triangles == want, k
+    base = Heightfield(z / 8e3 + 1e6, 1.0)  # 1 mm of relief at 1,000 km
+    assert refine_terrain(base, TerrainCamera(cam.eye + [0, 1e6, 0], cam.forward), NONE).triangles == want
+    plane = np.add.outer(np.arange(33) * 0.37, np.arange(33) * -1.3) + 1e6  # a tilted plane far from 0
+    assert refine_terrain(Heightfield(plane, 1.0), cam, NONE).triangles == 2
+
+
+def test_a_still_camera_has_no_velocity_at_any_time_step():
+    """The float64 velocity was acos of a dot product: ~1e-6 deg of rounding per step for a still corner,
+    which a short time step made a large velocity (2,038 or 2 triangles for 2,048)."""
+    z, cam, _ = _scene33()
+    hf, crit = Heightfield(z, 1.0), TerrainCriteria(xi=0.3, periphery=False)
+    want = refine_terrain(hf, cam, crit, ()).triangles
+    for dt in (1 / 30, 1e-9, 1e-300):
+        assert refine_terrain(hf, cam, crit, (cam, cam), dt_s=dt).triangles == want, dt
+
+
+def test_cameras_of_any_vector_length():
+    """A 1e-300 forward gave a NaN rotation (2 triangles); 1e308 components or a 1e-13 up were called
+    parallel."""
+    z, cam, _ = _scene33()
+    hf = Heightfield(z, 1.0)
+    want = refine_terrain(hf, cam, ALL)
+    for fwd, up in ((cam.forward * 1e-300, (0, 1, 0)), (cam.forward * 1e300, (0, 1, 0)),
+                    (cam.forward, (0, 1e-13, 0)), (cam.forward, (0, 1e300, 0))):
+        c = TerrainCamera(cam.eye, fwd, up=up)
+        np.testing.assert_allclose(c.rotation(), cam.rotation(), atol=1e-15)
+        assert refine_terrain(hf, c, ALL).triangles == want.triangles
+
+
+def test_heightfield_keeps_its_own_heights():
+    """The heightfield shared the caller's array: changed afterwards, the refinement used the old pyramid
+    and the mesh the new heights."""
+    z, cam, _ = _scene33()
+    hf = Heightfield(z, 1.0)
+    before = refine_terrain(hf, cam, NONE)
+    z[:] = 0.0
+    assert not hf.heights.flags.writeable and hf.heights.any()
+    V, F, _ = terrain_mesh(hf, before)
+    assert V[:, 1].max() > 0 and refine_terrain(hf, cam, NONE).triangles == before.triangles
+
+
+def test_fractal_heightfield_types():
+    z = fractal_heightfield(17, seed=3, relief=5.0, dtype=np.float32)
+    assert z.dtype == np.float32 and z.min() == 0.0 and abs(float(z.max()) - 5.0) < 1e-5
+    np.testing.assert_allclose(z, fractal_heightfield(17, seed=3, relief=5.0), rtol=1e-6, atol=1e-6)
