@@ -30,13 +30,20 @@ def repo_path(p: str | Path) -> Path:
     return q if q.is_absolute() else ROOT / q
 
 
-def check_out_dir(out: Path) -> Path:
+def check_out_dir(out: Path, config=None, writes=()) -> Path:
     """``out`` (an experiment's output folder), unless it is the repository root or a folder above it
-    (PlodError: a run would scatter its tables and plots among the project's files)."""
+    (PlodError: a run would scatter its tables and plots among the project's files), or one of the files
+    ``writes`` (names in ``out``; ``run_info.json`` always) is the ``config`` file the run reads."""
     r = Path(out).resolve()
     if r == ROOT.resolve() or r in ROOT.resolve().parents:
         raise PlodError(f"output folder {str(out)!r} is the repository root or above it; give a folder of its own "
                         "(e.g. reports/NAME)")
+    if config is not None:
+        c = Path(config).resolve()
+        for name in (*writes, "run_info.json"):
+            if (r / name).resolve() == c:
+                raise PlodError(f"output folder {str(out)!r}: the run would write its {name} over the config "
+                                f"{str(config)!r}; give another folder")
     return out
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxopt", "numpy", "scipy", "trimesh",

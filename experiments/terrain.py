@@ -34,6 +34,11 @@ SEED_TABLE = [((0, 0, 0, 0), 100.0), ((0, 0, 0, 1), 40.3), ((1, 0, 0, 1), 5.4), 
               ((1, 0, 1, 1), 5.4), ((1, 1, 1, 1), 0.8)]
 
 
+MAX_FRAMES = 1_000_000  # frames of a flight
+MAX_PX = 1e4  # pixels of screen-space error (xi / k)
+PPD_RANGE = (1.0, 40.0)  # pixels per degree of a judged window (90 x 60 deg: 90 x 60 .. 3600 x 2400 pixels)
+
+
 def _grid_size(n) -> bool:
     return isinstance(n, int) and not isinstance(n, bool) and n >= 3 and (n - 1) & (n - 2) == 0
 
@@ -59,19 +64,22 @@ def check_config(cfg: dict, who: str = "terrain") -> dict:
         "fractal_spacing_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
         "fractal_relief_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
         "resolution": (lambda x: _numbers(x, 2, lo=1, ints=True), "two pixel counts >= 1 (across, down)"),
-        "judge_px_per_deg": (lambda x: _numbers([x], lo=0), "a finite number >= 0 (0: twice xi)"),
+        "judge_px_per_deg": (lambda x: x == 0 or _numbers([x], lo=PPD_RANGE[0]) and x <= PPD_RANGE[1],
+                             f"0 (twice xi) or {PPD_RANGE[0]:g} .. {PPD_RANGE[1]:g} pixels per degree"),
         "frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
         "fig4_frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
         "fig4_velocities": (lambda x: _numbers(x, lo=0), "a non-empty list of velocities >= 0 deg/s"),
         "fig4_fovs": (lambda x: _numbers(x, lo=0, strict=True) and max(x) <= 180,
                       "a non-empty list of square fields of view in (0, 180] deg"),
-        "pixel_errors": (lambda x: _numbers(x, lo=0, strict=True), "a non-empty list of pixel errors > 0"),
+        "pixel_errors": (lambda x: _numbers(x, lo=0, strict=True) and max(x) <= MAX_PX,
+                         f"a non-empty list of pixel errors in (0, {MAX_PX:g}]"),
         "scale_size": (lambda x: x == 0 or _grid_size(x), "0 (no scale test) or 2^n + 1 samples"),
         "scale_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
         "judge_frames": (lambda x: _numbers(x, lo=3, ints=True, empty=True), "a list of flight frames >= 3"),
         "clip_starts": (lambda x: _numbers(x, lo=3, ints=True), "a non-empty list of flight frames >= 3"),
         "clip_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
-        "controls_px": (lambda x: _numbers(x, lo=0, strict=True, empty=True), "a list of pixel errors > 0"),
+        "controls_px": (lambda x: _numbers(x, lo=1, empty=True) and max(x, default=1) <= MAX_PX,
+                        f"a list of pixel errors in [1, {MAX_PX:g}]"),
     }
     for key, (ok, want) in checks.items():
         if key in cfg and not ok(cfg[key]):
@@ -87,6 +95,10 @@ def check_flight(fl: dict, path) -> dict:
     for key in ("duration_s", "fps", "yaw_period_s"):
         if not _numbers([fl[key]], lo=0, strict=True):
             bad(key, "a finite number > 0")
+    n = flight_frames(fl)
+    if not 4 <= n <= MAX_FRAMES:  # each refined frame takes its velocity from the three before it
+        bad("duration_s", f"such that duration_s x fps (= {fl['duration_s'] * fl['fps']:g}) gives 4 .. "
+            f"{MAX_FRAMES:,} frames")
     for key in ("orbit_frac", "orbit_turns", "altitude_m", "yaw_amp_deg"):
         if not _numbers([fl[key]]):
             bad(key, "a finite number")
@@ -98,11 +110,39 @@ def check_flight(fl: dict, path) -> dict:
     return fl
 
 
+def flight_frames(fl: dict) -> int:
+    """Frames of the flight ``fl``: round(duration_s x fps) + 1."""
+    return int(min(round(fl["duration_s"] * fl["fps"]), 2 * MAX_FRAMES)) + 1
+
+
+def check_frames(cfg: dict, fl: dict, who: str = "terrain"):
+    """PlodError naming the key when a judged frame or clip of ``cfg`` lies outside flight ``fl``'s frames
+    (a refined frame needs the three before it: frames 3 .. n - 1)."""
+    n = flight_frames(fl)
+    for k in cfg.get("judge_frames", []):
+        if not 3 <= k < n:
+            raise PlodError(f"{who}: config key 'judge_frames' has frame {k}, outside the flight's 3 .. {n - 1}")
+    for s in cfg.get("clip_starts", []):
+        if not (3 <= s and s + cfg["clip_frames"] <= n):
+            raise PlodError(f"{who}: config key 'clip_starts' has a clip of {cfg['clip_frames']} frames from frame "
+                            f"{s}, outside the flight's 3 .. {n - 1}")
+
+
+def judge_ppd(cfg: dict, xi: float, who: str = "terrain") -> float:
+    """Pixels per degree of the judged window: ``judge_px_per_deg``, or 2 xi when that is 0; PlodError
+    when 2 xi (from ``resolution``) falls outside the range a judged rendering can have."""
+    ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi
+    if not PPD_RANGE[0] <= ppd <= PPD_RANGE[1]:
+        raise PlodError(f"{who}: judge_px_per_deg = 0 takes twice xi, {ppd:g} pixels per degree from 'resolution' "
+                        f"{cfg['resolution']}, outside {PPD_RANGE[0]:g} .. {PPD_RANGE[1]:g}; set judge_px_per_deg")
+    return ppd
+
+
 def flight_cameras(hf: Heightfield, fl: dict, fov=None) -> list[TerrainCamera]:
     """The cameras of the generated flight (one per frame, 1 / fps s apart)."""
-    n = int(round(fl["duration_s"] * fl["fps"])) + 1
-    if n < 2:
-        raise PlodError("terrain flight: duration_s * fps must give at least two frames")
+    n = flight_frames(fl)
+    if not 4 <= n <= MAX_FRAMES:
+        raise PlodError(f"terrain flight: duration_s x fps must give 4 .. {MAX_FRAMES:,} frames, got {n}")
     side = (hf.n - 1) * hf.spacing
     t = np.arange(n) / fl["fps"]
     phi = 2 * math.pi * fl["orbit_turns"] * t / fl["duration_s"]
@@ -147,13 +187,43 @@ def load_terrains(cfg):
         cfg["fractal_spacing_m"]))]
     pgm = repo_path("../shared/data/terrain/SainteHelens_30m.pgm")
     if pgm.is_file():
-        from PIL import Image
-
         from optim._terrain import crop_heightfield
 
-        z = np.asarray(Image.open(pgm), dtype=np.float64)
+        z = read_pgm(pgm)
         out.append(("St Helens 257", Heightfield(crop_heightfield(z, 257), 30.0)))  # centre crop: no 0 = nodata
     return out
+
+
+def read_pgm(path) -> np.ndarray:
+    """The samples (rows, columns) float64 of the greyscale PGM (P2 or P5) ``path`` as stored in the file.
+
+    Pillow reads it but rescales every sample to 0..255 or 0..65535 from the header's maxval (a DEM whose
+    maxval is its highest elevation, 2543, came out 25.8x too tall): the maxval is read from the header
+    here and the rescaling undone (exactly: Pillow rounds v / maxval * top, and round(p maxval / top)
+    recovers v for maxval <= top). PlodError naming the file for anything that is not such a PGM."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+        tokens = []
+        for line in head.split(b"\n"):  # magic, width, height, maxval, with '#' comments
+            tokens += line.split(b"#", 1)[0].split()
+            if len(tokens) >= 4:
+                break
+        if len(tokens) < 4 or tokens[0] not in (b"P2", b"P5") or not tokens[3].isdigit():
+            raise PlodError(f"terrain: {str(path)!r} is not a greyscale PGM (P2 or P5 with a maxval)")
+        maxval = int(tokens[3])
+        with Image.open(path) as im:
+            if im.mode not in ("L", "I", "I;16", "I;16B"):
+                raise PlodError(f"terrain: {str(path)!r} is not a greyscale PGM (mode {im.mode})")
+            p = np.asarray(im, dtype=np.float64)
+    except (OSError, ValueError, UnidentifiedImageError) as exc:
+        if isinstance(exc, PlodError):
+            raise
+        raise PlodError(f"terrain: cannot read the PGM {str(path)!r}: {exc}") from None
+    top = 255 if maxval <= 255 else 65535
+    return p if maxval == top else np.round(p * (maxval / top))
 
 
 def run_config(path, out=None, progress=None) -> Path:
@@ -163,9 +233,12 @@ def run_config(path, out=None, progress=None) -> Path:
         raise PlodError(f"terrain: config kind must be 'terrain', got {cfg['kind']!r}")
     check_config(cfg)
     fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
-    out = check_out_dir(Path(out or repo_path(cfg["out"])))
+    check_frames(cfg, fl)
+    out = check_out_dir(Path(out or repo_path(cfg["out"])), config=path, writes=("table1.md", "fig4.png"))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])
+    if cfg["judge_frames"]:
+        judge_ppd(cfg, xi)
     lines = [f"# Seed 000 Table 1 and Figure 4 (Reddy's perceptual terrain LOD)", "",
              f"Command: `python -m experiments.terrain {path}`. Flight: {cfg['flight']} ({fl['duration_s']} s at "
              f"{fl['fps']} fps, every {cfg['frame_step']}th frame refined), FOV {fov[0]:g} x {fov[1]:g} deg, "
@@ -236,7 +309,7 @@ def _judged_section(hf, cams, cfg, fl, xi, out, name, progress):
         import pyfvvdp  # noqa: F401
     except ImportError:
         return ["Rendered frames: not judged (the judge extra is missing: pip install -e '.[judge]').", ""]
-    ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi
+    ppd = judge_ppd(cfg, xi)
     crits = named_criteria(xi)
     tag = name.replace(" ", "_").lower()
     try:

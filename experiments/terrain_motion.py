@@ -29,8 +29,8 @@ import numpy as np
 
 from experiments._runinfo import check_out_dir, load_config, repo_path, run_script, save_run_info
 from experiments.terrain import DEFAULTS as TERRAIN_DEFAULTS
-from experiments.terrain import (FLIGHT, check_config, check_flight, config_main, flight_cameras, load_terrains,
-                                 mean_angular_velocity, named_criteria, terrain_view)
+from experiments.terrain import (FLIGHT, check_config, check_flight, check_frames, config_main, flight_cameras,
+                                 judge_ppd, load_terrains, mean_angular_velocity, named_criteria, terrain_view)
 from optim._terrain import TerrainCriteria, refine_terrain
 from pmetric import PlodError, atomic_write_text
 
@@ -48,6 +48,8 @@ def clip_criteria(xi: float, names, controls_px) -> dict:
     bad = [n for n in names if n not in named]
     if bad:
         raise PlodError(f"terrain_motion: unknown criteria {bad!r}; choose from {sorted(named)}")
+    if not names and not controls_px:
+        raise PlodError("terrain_motion: config keys 'criteria' and 'controls_px' are both empty: nothing to judge")
     out = {n: named[n] for n in names}
     for k in controls_px:
         if not float(k) >= 1:
@@ -120,10 +122,11 @@ def run_config(path, out=None, progress=None) -> Path:
     except ImportError:
         raise PlodError("terrain_motion: the judge extra is missing (pip install -e '.[judge]')") from None
     fl = check_flight(load_config(repo_path(cfg["flight"]), FLIGHT), cfg["flight"])
-    out = check_out_dir(Path(out or repo_path(cfg["out"])))
+    check_frames(cfg, fl, "terrain_motion")
+    out = check_out_dir(Path(out or repo_path(cfg["out"])), config=path, writes=("motion.md", "motion.json"))
     fov = tuple(fl["fov_deg"])
     xi = float(cfg["resolution"][0]) / (2.0 * fov[0])
-    ppd = float(cfg["judge_px_per_deg"]) or 2.0 * xi
+    ppd = judge_ppd(cfg, xi, "terrain_motion")
     crits = clip_criteria(xi, cfg["criteria"], cfg["controls_px"])
     n = int(cfg["clip_frames"])
     lines = ["# Reddy's terrain criteria judged in motion (FovVideoVDP on rendered clips of the flight)", "",

@@ -1,5 +1,7 @@
 """Reddy's perceptual terrain quadtree (optim._terrain) [Red01 Table 1]: refinement, cracks, monotonicity."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -486,7 +488,16 @@ def test_bound_pass_decisions_agree_with_the_float64_test():
     ("fractal_relief_m = -5.0", "'fractal_relief_m' must be a finite number of metres > 0"),
     ("resolution = [1280]", "'resolution' must be two pixel counts"),
     ("frame_step = 0", "'frame_step' must be an integer >= 1"),
-    ("pixel_errors = [0]", "'pixel_errors' must be a non-empty list of pixel errors > 0"),
+    ("pixel_errors = [0]", "'pixel_errors' must be a non-empty list of pixel errors in (0, 10000]"),
+    # 2026-12-07 fuzz round: each failed late (an xi the acuity model refused, a Display of negative width, an
+    # IndexError traceback for a 3-frame flight, 'Maximum allowed size exceeded', a render never tried)
+    ("pixel_errors = [1e300]", "'pixel_errors' must be a non-empty list of pixel errors in (0, 10000]"),
+    ("judge_px_per_deg = 0.011", "'judge_px_per_deg' must be 0 (twice xi) or 1 .. 40 pixels per degree"),
+    ("judge_px_per_deg = 1000.0", "'judge_px_per_deg' must be 0 (twice xi) or 1 .. 40 pixels per degree"),
+    ("resolution = [1, 864]\njudge_frames = [10]", "judge_px_per_deg = 0 takes twice xi, 0.005 pixels per degree"),
+    ("judge_frames = [5000]", "'judge_frames' has frame 5000, outside the flight's 3 .. 600"),
+    ('flight = "SHORT"', "'duration_s' must be such that duration_s x fps (= 1.5) gives 4 .. 1,000,000 frames"),
+    ('flight = "LONG"', "'duration_s' must be such that duration_s x fps (= 3e+301) gives 4"),
     ("fig4_fovs = [400.0]", "'fig4_fovs' must be a non-empty list of square fields of view"),
     ("fig4_velocities = [-10.0]", "'fig4_velocities' must be a non-empty list of velocities >= 0"),
     ("judge_frames = [1]", "'judge_frames' must be a list of flight frames >= 3"),
@@ -496,12 +507,65 @@ def test_terrain_config_values_are_checked_before_work(tmp_path, line, msg):
     from experiments.terrain import run_config
 
     (tmp_path / "flight.toml").write_text("fov_deg = [200.0, 0.0]\n")
+    (tmp_path / "short.toml").write_text("duration_s = 0.05\n")
+    (tmp_path / "long.toml").write_text("duration_s = 1e300\n")
     cfg = tmp_path / "t.toml"
     size = "" if line.startswith("fractal_size") else "fractal_size = 33\n"
-    cfg.write_text('kind = "terrain"\n' + size + line.replace("FLIGHT", str(tmp_path / "flight.toml")) + "\n")
-    with pytest.raises(PlodError, match=msg.replace("^", r"\^").replace("+", r"\+").replace("[", r"\[")) as err:
+    for word, name in (("FLIGHT", "flight"), ("SHORT", "short"), ("LONG", "long")):
+        line = line.replace(word, str(tmp_path / f"{name}.toml"))
+    cfg.write_text('kind = "terrain"\n' + size + line + "\n")
+    with pytest.raises(PlodError, match=re.escape(msg)) as err:
         run_config(cfg, out=tmp_path / "out")
     assert "\n" not in str(err.value) and not (tmp_path / "out").exists()
+
+
+def test_a_run_does_not_write_over_its_own_config(tmp_path):
+    """A config named table1.md in the output folder was replaced by the report."""
+    from experiments.terrain import run_config
+
+    cfg = tmp_path / "table1.md"
+    cfg.write_text('kind = "terrain"\nfractal_size = 33\n')
+    with pytest.raises(PlodError, match="would write its table1.md over the config"):
+        run_config(cfg, out=tmp_path)
+    assert cfg.read_text() == 'kind = "terrain"\nfractal_size = 33\n'
+    other = tmp_path / "run_info.json"
+    other.write_text(cfg.read_text())
+    with pytest.raises(PlodError, match="would write its run_info.json over the config"):
+        run_config(other, out=tmp_path)
+
+
+def _pgm(path, magic, w, h, maxval, values):
+    v = np.asarray(values)
+    if magic == b"P2":
+        body = " ".join(map(str, v.ravel())).encode()
+    else:
+        body = v.astype(">u2" if maxval > 255 else "u1").tobytes()
+    path.write_bytes(magic + b"\n# a comment\n" + f"{w} {h}\n{maxval}\n".encode() + body)
+    return path
+
+
+@pytest.mark.parametrize("magic, maxval", [(b"P5", 2543), (b"P5", 65535), (b"P5", 200), (b"P5", 255),
+                                           (b"P2", 2543), (b"P2", 100)])
+def test_pgm_samples_are_read_as_stored(tmp_path, magic, maxval):
+    """Pillow rescales a PGM's samples to 0..255 / 0..65535 from its maxval: a DEM whose maxval is its top
+    elevation (2543 m) read 25.8 x too tall."""
+    from experiments.terrain import read_pgm
+
+    v = np.random.default_rng(maxval).integers(0, maxval + 1, (5, 7))
+    v[0, 0], v[0, 1] = 0, maxval
+    got = read_pgm(_pgm(tmp_path / "t.pgm", magic, 7, 5, maxval, v))
+    assert got.dtype == np.float64 and np.array_equal(got, v)
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage, not an image", b"P5\n7 5\n2543\n\x00\x01",
+                                     b"P6\n1 1\n255\n\x00\x00\x00", b"P5\n7 5\n70000\n" + bytes(70)])
+def test_bad_pgm_files_are_one_line(tmp_path, content):
+    from experiments.terrain import read_pgm
+
+    (tmp_path / "t.pgm").write_bytes(content)
+    with pytest.raises(PlodError, match="t.pgm") as err:
+        read_pgm(tmp_path / "t.pgm")
+    assert "\n" not in str(err.value)
 
 
 def test_random_valid_scenes_are_crack_free_and_bounded():

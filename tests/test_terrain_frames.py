@@ -149,6 +149,14 @@ def test_motion_config_errors_are_one_line(tmp_path):
         run_config(config('kind = "terrain"\n'))
     with pytest.raises(PlodError, match="clip_starts"):
         run_config(config('kind = "terrain_motion"\nclip_starts = []\n'))
+    # 2026-12-07 fuzz round: an IndexError-like numpy message after a clip's PNG was written; matplotlib's
+    # error after all the work; the acuity model's 'ReddyAcuity.xi' instead of the key
+    with pytest.raises(PlodError, match="'clip_starts' has a clip of 30 frames from frame 1000, outside the flight"):
+        run_config(config('kind = "terrain_motion"\nclip_starts = [3, 1000]\n'))
+    with pytest.raises(PlodError, match="'criteria' and 'controls_px' are both empty"):
+        run_config(config('kind = "terrain_motion"\ncriteria = []\ncontrols_px = []\n'))
+    with pytest.raises(PlodError, match=r"'controls_px' must be a list of pixel errors in \[1, 10000\]"):
+        run_config(config('kind = "terrain_motion"\ncontrols_px = [1e300]\n'))
     # through the CLI: the config's kind picks this experiment, and the error is one line
     proc = subprocess.run([sys.executable, "-m", "experiments.cli", "experiment",
                            str(config('kind = "terrain_motion"\nclip_frames = "thirty"\n'))],
