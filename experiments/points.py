@@ -65,14 +65,56 @@ SEED_FIG7 = {"size-only": 2.9e6, "perceptual, gaze 29 deg away": 0.8e6}  # Lucy,
 
 
 # ----------------------------------------------------------------------------------------------- inputs
+def _number(x, lo=None, hi=None, strict=False, integer=False) -> bool:
+    """``x`` is a finite number (an integer when ``integer``; not a bool) at least ``lo`` (more than ``lo``
+    when ``strict``) and below ``hi``."""
+    kinds = (int,) if integer else (int, float)
+    return (isinstance(x, kinds) and not isinstance(x, bool) and math.isfinite(x)
+            and (lo is None or (x > lo if strict else x >= lo)) and (hi is None or x < hi))
+
+
 def _check_sets(cfg) -> list[dict]:
+    """The point sets of ``cfg`` (one dict per set); PlodError naming the key when any value the
+    experiment reads is out of range (the loader checks only names and types), before any work."""
+    from optim._points import LEAF_K_MAX
+
+    def bad(key, want):
+        raise PlodError(f"config key {key!r} must be {want}, got {cfg[key]!r}")
+
     keys = ("paths", "names", "point_cloud", "directions", "ups")
     n = len(cfg["paths"])
     for k in keys:
         if len(cfg[k]) != n:
             raise PlodError(f"config: {k!r} has {len(cfg[k])} entries, 'paths' has {n}; give one per point set")
+    if not all(isinstance(x, str) and x.strip() for x in cfg["paths"]):
+        bad("paths", "a list of file names or 'sphere:SUBDIV'")
+    for x in cfg["paths"]:
+        if x.startswith("sphere:") and not x[7:].strip().isdigit():
+            raise PlodError(f"config: procedural set {x!r} must be 'sphere:SUBDIV' with an integer")
+        if not x.startswith("sphere:") and not repo_path(x).is_file():
+            raise PlodError(f"config: point file {x!r} does not exist (paths are relative to the repository)")
+    if not all(isinstance(x, str) for x in cfg["names"]):
+        bad("names", "a list of strings (one name per point set)")
+    if not all(isinstance(x, bool) for x in cfg["point_cloud"]):
+        bad("point_cloud", "a list of true / false (one per point set)")
+    for key in ("directions", "ups"):
+        if not all(isinstance(v, (list, tuple)) and len(v) == 3 and all(_number(x) for x in v) and any(v)
+                   for v in cfg[key]):
+            bad(key, "a list of nonzero 3-vectors of finite numbers (one per point set)")
     if not cfg["object_deg"]:
         raise PlodError("config: 'object_deg' must list at least one object size (deg)")
+    if not all(_number(x, lo=0, hi=180, strict=True) for x in cfg["object_deg"]):
+        bad("object_deg", "a list of object sizes in (0, 180) deg")
+    if not _number(cfg["gaze_error_deg"], lo=0):
+        bad("gaze_error_deg", "a finite angle >= 0 deg")
+    if not _number(cfg["min_px"], lo=0):
+        bad("min_px", "a finite number of pixels >= 0")
+    if not _number(cfg["leaf_k"], lo=1, hi=LEAF_K_MAX + 1, integer=True):
+        bad("leaf_k", f"an integer in [1, {LEAF_K_MAX}]")
+    if not _number(cfg["repeats"], lo=1, integer=True):
+        bad("repeats", "an integer >= 1")
+    if not isinstance(cfg["judge"], bool):
+        bad("judge", "true or false")
     slugs = [_slug(str(x)) for x in cfg["names"]]
     if len(set(slugs)) != len(slugs):  # figures are named by slug: one would overwrite the other
         raise PlodError(f"config: 'names' must differ before their first ' (' and in their letters and digits "
@@ -82,6 +124,10 @@ def _check_sets(cfg) -> list[dict]:
         if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and 0 <= x < 80
                    for x in vals):
             raise PlodError(f"config key {key!r} must be angles in [0, 80) deg from the centre, got {cfg[key]!r}")
+    for key in ("object_deg", "curve_gaze_deg"):  # object_deg names the figures, curve_gaze_deg the curve's points
+        labels = [f"{float(x):g}" for x in cfg.get(key, [])]
+        if len(set(labels)) != len(labels):
+            bad(key, "a list of different values (as printed with 6 digits: they name the outputs)")
     return [dict(zip(keys, row)) for row in zip(*(cfg[k] for k in keys))]
 
 

@@ -577,6 +577,6 @@ def save_mesh(path, vertices, faces, colors=None, *, protect=(), normals=None):
     data = mesh.export(file_type=fmt, **ex)
     if isinstance(data, str):
         data = data.encode("utf-8")
-    with atomic_path(p, protect=tuple(protect)) as tmp:
+    with atomic_path(p, protect=protect) as tmp:
         tmp.write_bytes(data)
     return p

@@ -3,7 +3,7 @@ contrast-sensitivity test of [LH01 §4].
 
 **Hierarchy** (:func:`build_points`). Leaves are the input points (mesh vertices with their normals
 and colours, or a point cloud: :func:`points_from_mesh`, :func:`load_points`); each leaf's sphere has
-the radius of the distance to its ``leaf_k``-th nearest point, so neighbouring leaf spheres overlap
+the radius of the distance to its ``leaf_k``-th nearest distinct point position, so neighbouring leaf spheres overlap
 and their splats tile the surface [RL00]. The tree is binary, built top down by a median split
 of every node along the longest side of its points' bounding box, one vectorized pass per level (no
 Python loop over nodes); nodes are numbered breadth first with the children of a parent contiguous
@@ -12,7 +12,8 @@ Python loop over nodes); nodes are numbered breadth first with the children of a
 * holds a sphere containing its children's spheres (hence all its descendants' spheres [LH01 §4]):
   centre the middle of the children's spheres' bounding box, radius the largest ``|c - c_i| + r_i``;
 * averages its children's colour (linear RGB, weighted by the number of points, i.e. the mean of its
-  points' colours) and normal (the normalised sum of its points' unit normals);
+  points' colours) and normal (the normalised sum of its points' unit normals; where they cancel,
+  the normal of its first child, the one with the more points, so that every normal is unit);
 * holds a normal cone about that normal whose half-angle is exact over its points' normals (the
   largest angle from the axis to one of them; pi when the normals cancel), and ``sil_half``, that cone
   widened to the cones of every node of its level whose sphere intersects its own ([LH01 §4]:
@@ -56,6 +57,7 @@ relative luminance in [0, 1] (display luminance in cd/m2 from the view's :class:
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -73,6 +75,8 @@ __all__ = ["PointHierarchy", "Traversal", "PointTerms", "build_points", "points_
            "save_points", "point_terms", "traverse", "walk", "splat_discs", "CRITERIA"]
 
 CRITERIA = ("perceptual", "size")
+#: the largest ``leaf_k`` of :func:`build_points` (its neighbour query takes P * leaf_k memory)
+LEAF_K_MAX = 64
 #: node columns are padded to a multiple of this many nodes (vectorised XLA loops; see optim._context)
 _PAD = 1024
 
@@ -80,12 +84,22 @@ _PAD = 1024
 # ----------------------------------------------------------------------------------------------- input
 
 
+def _real(a, what: str, name: str) -> np.ndarray:
+    """``a`` as a float64 array, PlodError for what is not real numbers (complex included: numpy would
+    silently drop the imaginary part)."""
+    try:
+        raw = np.asarray(a)
+        out = None if raw.dtype.kind == "c" else np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PlodError(f"{name}: {what} must be a (P, 3) array of numbers") from None
+    if out is None:
+        raise PlodError(f"{name}: {what} must be real numbers, got complex values")
+    return out
+
+
 def _check_points(points, normals, colors, name: str = "build_points"):
     """(points (P, 3) float64, unit normals (P, 3) float64, colours (P, 3) float64 sRGB or None)."""
-    try:
-        p = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PlodError(f"{name}: points must be a (P, 3) array of numbers") from None
+    p = _real(points, "points", name)
     if p.ndim != 2 or p.shape[1] != 3:
         raise PlodError(f"{name}: points must have shape (P, 3), got {p.shape}")
     if len(p) == 0:
@@ -105,10 +119,7 @@ def _check_points(points, normals, colors, name: str = "build_points"):
             what = "all points coincide (bounding-box diagonal 0)" if diag == 0 else \
                 f"bounding-box diagonal {diag:g} is below {DIAGONAL_MIN:g}; scale the points (a power of two keeps them exact)"
             raise PlodError(f"{name}: {what}")
-    try:
-        n = np.asarray(normals, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PlodError(f"{name}: normals must be a (P, 3) array of numbers") from None
+    n = _real(normals, "normals", name)
     if n.shape != p.shape:
         raise PlodError(f"{name}: normals must have shape {p.shape} like the points, got {n.shape}")
     if not np.isfinite(n).all():
@@ -119,32 +130,35 @@ def _check_points(points, normals, colors, name: str = "build_points"):
                         "first); every point needs a direction")
     c = None
     if colors is not None:
-        try:
-            c = np.asarray(colors, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise PlodError(f"{name}: colors must be a (P, 3) array of numbers") from None
+        c = _real(colors, "colors", name)
         if c.ndim != 2 or c.shape[0] != len(p) or c.shape[1] not in (3, 4):
             raise PlodError(f"{name}: colors must have shape (P, 3) or (P, 4) with P = {len(p)}, got {c.shape}")
         c = c[:, :3]
         if not np.isfinite(c).all():
             raise PlodError(f"{name}: colors contain NaN or infinite values")
         if np.issubdtype(np.asarray(colors).dtype, np.integer):
+            raw = np.asarray(colors)[:, :3]
+            if raw.min() < 0 or raw.max() > 255:
+                raise PlodError(f"{name}: integer colors must lie in [0, 255] (got {raw.min()}..{raw.max()})")
             c = c / 255.0
         if c.min() < 0 or c.max() > 1:
             raise PlodError(f"{name}: float colors must lie in [0, 1] (got {c.min():g}..{c.max():g})")
     return p, unit_any_length(n), c
 
 
-def points_from_mesh(vertices, faces, colors=None):
+def points_from_mesh(vertices, faces, colors=None, *, name: str = "points_from_mesh"):
     """(points, unit normals, colours or None) of a mesh's vertices: the area-weighted vertex normals
-    of :func:`optim.vertex_luminance`'s shading; vertices on no face (no normal) are dropped."""
+    of :func:`optim.vertex_luminance`'s shading; vertices on no face (no normal) are dropped.
+    PlodError when no vertex is left (every face degenerate: zero area)."""
     from ._mesh import validate_mesh
     from ._tree import _vertex_normals
 
-    m = validate_mesh(vertices, faces, colors, name="points_from_mesh", count_nonmanifold=False)
+    m = validate_mesh(vertices, faces, colors, name=name, count_nonmanifold=False)
     v, f = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
     n = _vertex_normals(v, f)
     ok = np.linalg.norm(n, axis=1) > 0
+    if not ok.any():
+        raise PlodError(f"{name}: every face is degenerate (zero area), so no vertex has a normal; no points")
     c = None if m.colors is None else np.asarray(m.colors)[ok]
     return v[ok], _unit(n[ok]), c
 
@@ -152,14 +166,19 @@ def points_from_mesh(vertices, faces, colors=None):
 def load_points(path):
     """(points (P, 3), unit normals (P, 3), sRGB colours (P, 3) in [0, 1] or None) from a file: a
     triangle mesh (its vertices, :func:`points_from_mesh`) or a point-cloud PLY with ``nx, ny, nz``
-    normals (and optional ``red, green, blue``), read with trimesh. PlodError for anything else."""
+    normals (and optional ``red, green, blue``), read with trimesh. PlodError for anything else: a path
+    that is not a file name, an ASCII PLY whose rows disagree with its header, a mesh of degenerate faces."""
     import trimesh
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise PlodError(f"load_points: path must be a file name (str or os.PathLike), got {type(path).__name__}")
     p = Path(path)
     if not p.exists():
         raise PlodError(f"point file {str(p)!r} does not exist")
     if p.is_dir():
         raise PlodError(f"{str(p)!r} is a directory, not a point or mesh file")
+    if p.suffix.lower() == ".ply":
+        _check_ascii_ply(p)
     try:
         obj = trimesh.load(str(p), process=False)
     except Exception as exc:  # trimesh raises many kinds on unreadable files
@@ -173,7 +192,7 @@ def load_points(path):
         from ._mesh import load_mesh
 
         v, f, c = load_mesh(p)
-        return points_from_mesh(v, f, c)
+        return points_from_mesh(v, f, c, name=f"point file {str(p)!r}")
     if not isinstance(obj, (trimesh.PointCloud, trimesh.Trimesh)):
         raise PlodError(f"point file {str(p)!r} holds a {type(obj).__name__}, not points")
     raw = obj.metadata.get("_ply_raw", {}).get("vertex", {}).get("data") if p.suffix.lower() == ".ply" else None
@@ -190,13 +209,62 @@ def load_points(path):
     return _check_points(np.asarray(obj.vertices, np.float64), normals, colors, name=f"point file {str(p)!r}")
 
 
+def _check_ascii_ply(p: Path) -> None:
+    """PlodError naming ``p`` when an ASCII PLY's data rows disagree with its header (trimesh reads the
+    rows it finds: a truncated file lost points silently, several points on one line read as one): the
+    number of rows must be the sum of the header's element counts, and each row of an element without
+    list properties must hold one number per property. Binary PLYs are left to trimesh (it checks the
+    length)."""
+    with open(p, "rb") as fh:
+        start = fh.read(1 << 16)
+    end = start.find(b"end_header")
+    if not start.startswith(b"ply") or end < 0 or b"format ascii" not in start[:end]:
+        return  # not an ASCII PLY with a header trimesh can read: trimesh's error names it
+    elements = []  # (name, count, number of properties, has a list property)
+    for line in start[:end].decode("latin-1").splitlines():
+        w = line.split()
+        if len(w) == 3 and w[0] == "element":
+            try:
+                elements.append([w[1], int(w[2]), 0, False])
+            except ValueError:
+                raise PlodError(f"point file {str(p)!r}: bad PLY header line {line.strip()!r}") from None
+        elif w and w[0] == "property" and elements:
+            elements[-1][2] += 1
+            elements[-1][3] |= len(w) > 1 and w[1] == "list"
+    data = p.read_bytes()
+    body = data[data.find(b"\n", end) + 1:].decode("latin-1").splitlines()
+    while body and not body[-1].strip():
+        body.pop()
+    want = sum(e[1] for e in elements)
+    if len(body) != want:
+        counts = ", ".join(f"{e[1]} {e[0]}" for e in elements)
+        raise PlodError(f"point file {str(p)!r}: its PLY header declares {want} data rows ({counts}) but the file "
+                        f"has {len(body)}; the file is truncated or malformed")
+    row = 0
+    for name, count, n_props, has_list in elements:
+        rows = body[row:row + count]
+        row += count
+        if has_list:
+            continue
+        sizes = np.fromiter((len(r.split()) for r in rows), np.int64, count)
+        bad = np.flatnonzero(sizes != n_props)
+        if len(bad):
+            raise PlodError(f"point file {str(p)!r}: {name} row {int(bad[0])} has {int(sizes[bad[0]])} values, the "
+                            f"header declares {n_props} properties; the file is malformed")
+        try:
+            np.array(" ".join(rows).split(), dtype=np.float64)
+        except ValueError:
+            raise PlodError(f"point file {str(p)!r}: a {name} row holds something that is not a number") from None
+
+
 def save_points(path, points, normals, colors=None, *, protect=()) -> Path:
-    """Write a binary point-cloud PLY (``x y z nx ny nz`` float32, ``red green blue`` uint8 when
-    colours are given) atomically; :func:`load_points` reads it back."""
+    """Write a binary point-cloud PLY (``x y z`` float64, so that :func:`load_points` reads the points
+    back exactly, far from 0 too; ``nx ny nz`` float32 unit normals; ``red green blue`` uint8 when colours
+    are given) atomically. ``protect``: input files never overwritten (one path or several)."""
     import pmetric as pm
 
     p, n, c = _check_points(points, normals, colors, name="save_points")
-    fields = [(k, "<f4") for k in ("x", "y", "z", "nx", "ny", "nz")]
+    fields = [(k, "<f8") for k in ("x", "y", "z")] + [(k, "<f4") for k in ("nx", "ny", "nz")]
     if c is not None:
         fields += [(k, "u1") for k in ("red", "green", "blue")]
     rec = np.empty(len(p), dtype=fields)
@@ -205,7 +273,8 @@ def save_points(path, points, normals, colors=None, *, protect=()) -> Path:
     if c is not None:
         for i, k in enumerate(("red", "green", "blue")):
             rec[k] = np.round(c[:, i] * 255.0)
-    props = "".join(f"property {'float' if t == '<f4' else 'uchar'} {k}\n" for k, t in fields)
+    ply_type = {"<f8": "double", "<f4": "float", "u1": "uchar"}
+    props = "".join(f"property {ply_type[t]} {k}\n" for k, t in fields)
     head = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(p)}\n{props}end_header\n".encode("ascii")
     out = Path(path)
     with pm.atomic_path(out, protect=protect) as tmp:
@@ -221,7 +290,8 @@ class PointHierarchy:
     parent contiguous at ``child_start : child_start + child_count``).
 
     Per node (N,): ``center`` (N, 3) and ``radius`` (object units; a sphere holding every descendant's
-    sphere); ``normal`` (N, 3) unit, ``cone_half`` (rad) the cone about it holding every point normal
+    sphere); ``normal`` (N, 3) unit (where its points' normals cancel: its first child's, and
+    ``cone_half`` is pi), ``cone_half`` (rad) the cone about it holding every point normal
     below, ``sil_half`` (rad) that cone widened to the cones of the intersecting nodes of its level (the
     silhouette test); ``rgb`` (N, 3) linear RGB of the splat (mean of its points); ``lum`` relative
     luminance of the splat; ``lum_min``, ``lum_max`` the luminance range its splat can change (its
@@ -267,10 +337,11 @@ class PointHierarchy:
         return np.flatnonzero(self.child_count == 0)
 
     def srgb(self, nodes=None) -> np.ndarray:
-        """(K, 3) float32 sRGB in [0, 1] of the splats of ``nodes`` (default all)."""
+        """(K, 3) float32 sRGB in [0, 1] of the splats of ``nodes`` (K,) node indices in [0, n_nodes)
+        (default all nodes)."""
         from pmetric import linear_to_srgb
 
-        rgb = self.rgb if nodes is None else self.rgb[np.asarray(nodes, np.intp)]
+        rgb = self.rgb if nodes is None else self.rgb[_node_indices(self, nodes, "srgb")]
         return np.array(linear_to_srgb(np.asarray(rgb, np.float32)), np.float32)
 
 
@@ -349,8 +420,9 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
 
     ``lighting`` (:class:`optim.Lighting` or what ``Lighting.coerce`` takes; default its default)
     pre-lights uncoloured points from their normals (ignored with colours: colours are displayed
-    as they are, as in the baked renderer). ``leaf_k``: a leaf's radius is the distance to its
-    ``leaf_k``-th nearest point (fewer when there are fewer points; 0 for a single point).
+    as they are, as in the baked renderer). ``leaf_k`` (1 .. :data:`LEAF_K_MAX`): a leaf's radius is the
+    distance to its ``leaf_k``-th nearest distinct position (coincident copies of a point do not count;
+    fewer when there are fewer distinct positions; 0 for a single point).
     ``progress(stage, done, total)`` is called per stage. PlodError (one line) for bad input.
     """
     from scipy.spatial import cKDTree
@@ -360,8 +432,8 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
     from ._tree import Lighting
 
     p, n_in, c = _check_points(points, normals, colors)
-    if not isinstance(leaf_k, (int, np.integer)) or isinstance(leaf_k, bool) or leaf_k < 1:
-        raise PlodError(f"build_points: leaf_k must be a positive integer, got {leaf_k!r}")
+    if not isinstance(leaf_k, (int, np.integer)) or isinstance(leaf_k, bool) or not 1 <= leaf_k <= LEAF_K_MAX:
+        raise PlodError(f"build_points: leaf_k must be a positive integer up to {LEAF_K_MAX}, got {leaf_k!r}")
     if progress is not None and not callable(progress):
         raise PlodError(f"build_points: progress must be None or a callable (stage, done, total), got {progress!r}")
     report = progress if progress is not None else (lambda *a: None)
@@ -385,11 +457,13 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
     leaves = np.flatnonzero(is_leaf)
 
     report("leaves", 1, 4)
-    k = min(leaf_k, P - 1)
+    # distinct positions (+ 0.0: -0.0 is 0.0): coincident copies of a point are not its neighbours
+    uniq, inv = np.unique(p + 0.0, axis=0, return_inverse=True)
+    k = min(int(leaf_k), len(uniq) - 1)
     r_leaf = np.zeros(P)
     if k >= 1:
-        dist, _ = cKDTree(p).query(p, k=k + 1)
-        r_leaf = np.asarray(dist)[:, -1]
+        dist, _ = cKDTree(uniq).query(uniq, k=k + 1)
+        r_leaf = np.asarray(dist)[:, -1][inv.reshape(-1)]
     if c is not None:  # linear light, so that a node's luminance is the mean of its points'
         lin = np.asarray(pm.srgb_to_linear(c.astype(np.float32)), np.float64)
     else:
@@ -401,6 +475,9 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
     rgb = (cs(lin)[hi] - cs(lin)[lo]) / count[:, None]
     nsum = cs(n_in)[hi] - cs(n_in)[lo]
     normal = _unit(nsum)
+    cancel = np.linalg.norm(nsum, axis=1) <= 1e-9 * count  # normals cancel: the cone is every direction
+    for i in np.flatnonzero(cancel)[::-1]:  # deepest first: a child's normal is final before its parent's
+        normal[i] = normal[child_start[i]]  # the first child has the more points (or as many)
     lum = np.asarray(pm.relative_luminance(rgb), np.float64)
 
     report("spheres", 2, 4)
@@ -423,7 +500,7 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
     for nodes, idx, off in level_runs(start, lo, hi - lo, ~is_leaf):
         dots = np.einsum("ij,ij->i", np.repeat(normal[nodes], hi[nodes] - lo[nodes], axis=0), n_sorted[idx])
         cone[nodes] = np.arccos(np.clip(np.minimum.reduceat(dots, off), -1.0, 1.0))
-    cone[np.linalg.norm(nsum, axis=1) <= 1e-9 * count] = np.pi  # normals cancel: any direction
+    cone[cancel] = np.pi  # normals cancel: any direction
     cone = np.minimum(cone * (1 + 1e-6) + 1e-6 * ~is_leaf, np.pi)
 
     report("neighbours", 3, 4)
@@ -451,6 +528,17 @@ def build_points(points, normals, colors=None, *, lighting=None, leaf_k: int = 4
         rgb=ro(rgb), lum=ro(lum), lum_min=ro(lum_min), lum_max=ro(lum_max), fold_delta=ro(delta),
         parent=ro(parent), child_start=ro(child_start), child_count=ro(child_count), depth=ro(depth),
         point=ro(point), point_lo=ro(lo), point_hi=ro(hi), order=ro(order), levels=lv, colored=c is not None)
+
+
+def _node_indices(h: PointHierarchy, nodes, who: str) -> np.ndarray:
+    """``nodes`` as a (K,) intp array of node indices of ``h``; PlodError unless a 1-D integer array
+    with every index in [0, n_nodes) (negative indices do not wrap)."""
+    raw = np.asarray(nodes)
+    if raw.ndim != 1 or not (np.issubdtype(raw.dtype, np.integer) or raw.size == 0):
+        raise PlodError(f"{who}: nodes must be a 1-D array of node indices, got {raw.dtype} {raw.shape}")
+    if raw.size and (raw.min() < 0 or raw.max() >= h.n_nodes):  # checked before the cast: uint64 would wrap
+        raise PlodError(f"{who}: node indices must lie in [0, {h.n_nodes}), got {raw.min()}..{raw.max()}")
+    return raw.astype(np.intp)
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -574,9 +662,12 @@ def point_terms(h: PointHierarchy, view, model=None, *, widen: bool = False) -> 
     invisible from farther away, where the node moves towards the gaze, so a peripheral node would
     almost never qualify)."""
     from ._terms import view_params
+    from ._view import View
 
     if not isinstance(h, PointHierarchy):
         raise PlodError(f"traverse: expected a PointHierarchy (optim._points.build_points), got {type(h).__name__}")
+    if not isinstance(view, View):
+        raise PlodError(f"traverse: view must be an optim.View, got {type(view).__name__}")
     m = _model(model)
     vp = view_params(view, (float(np.clip(h.lum_min.min(), 0, 1)), float(np.clip(h.lum_max.max(), 0, 1))),
                      _origin(h))
@@ -671,12 +762,7 @@ def splat_discs(h: PointHierarchy, nodes, *, segments: int = 8, tint=None):
     faces (K S, 3) int64, sRGB colours (K (S+1), 3) float32); ``tint`` (K, 3) sRGB overrides colours."""
     if not isinstance(h, PointHierarchy):
         raise PlodError(f"splat_discs: h must be a PointHierarchy, got {type(h).__name__}")
-    raw = np.asarray(nodes)
-    if raw.ndim != 1 or not (np.issubdtype(raw.dtype, np.integer) or raw.size == 0):
-        raise PlodError(f"splat_discs: nodes must be a 1-D array of node indices, got {raw.dtype} {raw.shape}")
-    nodes = raw.astype(np.intp)
-    if nodes.size and (nodes.min() < 0 or nodes.max() >= h.n_nodes):
-        raise PlodError(f"splat_discs: node indices must lie in [0, {h.n_nodes}), got {nodes.min()}..{nodes.max()}")
+    nodes = _node_indices(h, nodes, "splat_discs")
     if not isinstance(segments, (int, np.integer)) or isinstance(segments, bool) or segments < 3:
         raise PlodError(f"splat_discs: segments must be an integer >= 3, got {segments!r}")
     s = int(segments)

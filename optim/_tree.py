@@ -356,7 +356,7 @@ class VertexTree:
             "origin": [float(x) for x in self.origin],  # repr of a float64 reads back exactly
         }
         arrays = {k: getattr(self, k) for k in _ARRAYS if getattr(self, k) is not None}
-        with atomic_path(path, protect=tuple(protect)) as tmp:
+        with atomic_path(path, protect=protect) as tmp:
             with open(tmp, "wb") as fh:
                 np.savez(fh, __meta__=np.array(json.dumps(meta)), **arrays)
         return Path(path)

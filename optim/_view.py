@@ -247,7 +247,11 @@ class View(eqx.Module):
 
         Depth is in object units; points with depth <= 0 are behind the camera (their pixels are inf).
         """
-        p = (np.asarray(points, dtype=np.float64) - self.eye) @ self.rotation.T
+        return self._project_camera((np.asarray(points, dtype=np.float64) - self.eye) @ self.rotation.T)
+
+    def _project_camera(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`project` of camera-space vectors ``p`` (..., 3) from the eye (rotated, not moved: a
+        direction from the eye projects as the point ``eye + p`` without the rounding of adding the eye)."""
         depth = -p[..., 2]
         front = depth > 0
         s = self.focal_px / np.where(front, depth, 1.0)
@@ -287,7 +291,11 @@ class View(eqx.Module):
         if not np.isfinite(g).all():
             raise PlodError("View: gaze contains a non-finite value")
         if g.shape[1] == 3:
-            xy, depth = self.project(self.eye + g)
+            if not np.abs(g).max(axis=1).all():
+                raise PlodError("View: a gaze direction is zero")
+            # the direction rotated into the camera frame, not eye + g projected: far from 0 the sum
+            # rounds g away (at |eye| ~ 1e15 a gaze moved by degrees, or turned behind the camera)
+            xy, depth = self._project_camera(g @ self.rotation.T)
             if (depth <= 0).any():
                 raise PlodError("View: a gaze direction points behind the camera")
             return xy  # may lie off the screen: a viewer can look past its edge

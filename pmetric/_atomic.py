@@ -36,7 +36,7 @@ from typing import Iterator
 
 from ._errors import PlodError
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "STALE_AFTER_S", "TMP_TAG",
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "protect_paths", "STALE_AFTER_S", "TMP_TAG",
            "add_commit_check", "remove_commit_check", "remove_stale_temps", "remove_stale_temps_in"]
 
 TMP_TAG = ".plod-tmp-"
@@ -150,22 +150,48 @@ def _new_temp(dest: Path) -> Path:
     raise FileExistsError(f"cannot create a temporary file beside {str(dest)!r}")
 
 
+def protect_paths(protect) -> tuple:
+    """``protect`` as a tuple of paths: one path (a ``str`` or ``os.PathLike``) is one file
+    (not its characters), ``None`` none, else an iterable of paths (``None`` entries are skipped).
+    PlodError (one line) for anything else."""
+    if protect is None:
+        return ()
+    if isinstance(protect, (str, os.PathLike)):
+        return (protect,)
+    try:
+        items = tuple(protect)
+    except TypeError:
+        raise PlodError(f"protect must be a path or a sequence of paths, got {type(protect).__name__}") from None
+    for p in items:
+        if p is not None and not isinstance(p, (str, os.PathLike)):
+            raise PlodError(f"protect must be a path or a sequence of paths, got an entry of type {type(p).__name__}")
+    return tuple(p for p in items if p is not None)
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, *, protect: tuple[str | os.PathLike, ...] = ()) -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike, *, protect: str | os.PathLike | tuple[str | os.PathLike, ...] = ()
+                ) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success move it onto ``path`` atomically.
 
-    ``protect`` lists input files that must never be overwritten: a :class:`PlodError` (a
-    ``ValueError``) is raised before anything is written when ``path`` resolves to one of them.
+    ``protect`` lists input files that must never be overwritten (one path or a sequence of paths,
+    :func:`protect_paths`): a :class:`PlodError` (a ``ValueError``) is raised before anything is
+    written when ``path`` resolves to one of them, or is a directory, or lies below a file.
     The caller writes the temporary path (by name: it already exists, empty). A new ``path`` gets
     mode ``0666 & ~umask``; an existing one keeps its permission bits. On any exception the
     temporary file is removed and ``path`` is left as it was.
     """
     dest = Path(path)
-    for p in protect:
-        if p is not None and Path(p).exists() and dest.exists() and os.path.samefile(dest, p):
+    for p in protect_paths(protect):
+        if Path(p).exists() and dest.exists() and os.path.samefile(dest, p):
             raise PlodError(f"refusing to overwrite the input file {str(p)!r}; choose another output path")
+    if dest.is_dir():
+        raise PlodError(f"cannot write {str(dest)!r}: it is a directory; give a file name")
     _run_commit_checks()
-    dest.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise PlodError(f"cannot write {str(dest)!r}: a file is in the way of its folder "
+                        f"{str(dest.parent)!r}") from None
     remove_stale_temps(dest)
     tmp_path: Path | None = None
     try:

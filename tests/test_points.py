@@ -385,3 +385,143 @@ def test_a_far_point_cloud_traverses_like_the_same_cloud_near_0():
         t0 = traverse(near, offset_gaze_view(p, gaze_deg, object_deg=10.0))
         t1 = traverse(far, offset_gaze_view(p + off, gaze_deg, object_deg=10.0))
         assert t0.splats > 100 and np.array_equal(np.sort(t1.drawn), np.sort(t0.drawn))
+
+
+# ----------------------------------------------------------------------------------------------- fuzzer findings
+def test_a_far_cloud_round_trips_exactly_through_a_point_ply(tmp_path):
+    """save_points writes float64 coordinates: a cloud near 1e7 reads back exactly (before: float32, up
+    to 0.5 units off and 42 of 50 points merged)."""
+    rng = np.random.default_rng(0)
+    p = rng.random((50, 3)) + np.array([1e7, -3e9, 12345.678])
+    n = rng.normal(size=(50, 3))
+    save_points(tmp_path / "far.ply", p, n)
+    q, m, _ = load_points(tmp_path / "far.ply")
+    np.testing.assert_array_equal(q, p)
+    np.testing.assert_allclose(m, n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-6)
+
+
+@pytest.mark.parametrize("as_path", [str, __import__("pathlib").Path])
+def test_save_points_protects_a_single_input_path(tmp_path, as_path):
+    """``protect=src`` (one str or Path, not a tuple) protects src (before: a str was taken as its
+    characters and the input overwritten; a Path raised a TypeError)."""
+    src = tmp_path / "in.ply"
+    p = np.random.default_rng(1).random((20, 3))
+    save_points(src, p, np.tile([0.0, 0.0, 1.0], (20, 1)))
+    before = src.read_bytes()
+    with pytest.raises(pm.PlodError, match="refusing to overwrite the input file"):
+        save_points(src, p[:5], np.tile([0.0, 0.0, 1.0], (5, 1)), protect=as_path(src))
+    assert src.read_bytes() == before
+
+
+def test_coincident_copies_do_not_shrink_leaf_radii():
+    """A leaf's radius is the distance to its leaf_k-th nearest *distinct* position: every point doubled
+    gives the radii of the cloud itself (before: 0, so a size-only traversal drew 451 empty splats)."""
+    P, N = optim.points_from_mesh(*optim.bumpy_sphere(3))[:2]
+    for k in (1, 4):
+        one = build_points(P, N, leaf_k=k)
+        two = build_points(np.repeat(P, 2, 0), np.repeat(N, 2, 0), leaf_k=k)
+        r1 = one.radius[one.leaves][np.argsort(one.point[one.leaves])]
+        r2 = two.radius[two.leaves][np.argsort(two.point[two.leaves])]
+        np.testing.assert_array_equal(r2, np.repeat(r1, 2))
+        assert r1.min() > 0
+    t = traverse(two, optim.View.framing(P, 10.0), criterion="size")
+    assert t.splats > 0 and (two.radius[t.drawn] > 0).all()
+
+
+def test_cancelling_normals_give_a_unit_normal():
+    """A node whose points' normals cancel gets its first child's normal (a unit vector; before: (0, 0, 0)),
+    with the cone of every direction."""
+    h = build_points([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]], [[0, 0, 1], [0, 0, -1], [0, 0, 1], [0, 0, -1.0]])
+    np.testing.assert_allclose(np.linalg.norm(h.normal, axis=1), 1.0, rtol=1e-12)
+    assert h.cone_half[0] == np.pi
+    np.testing.assert_array_equal(h.normal[0], h.normal[h.child_start[0]])
+    v, f, _ = splat_discs(h, np.array([0]))
+    np.testing.assert_allclose(np.linalg.norm(v[1:] - v[0], axis=1), h.radius[0], rtol=1e-9)  # a disc, not a point
+
+
+_PLY6 = "ply\nformat ascii 1.0\nelement vertex {}\n" + "".join(f"property float {a}\n" for a in
+                                                              ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n"
+
+
+@pytest.mark.parametrize("count, body, match", [
+    (5, "0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0 0 1\n", r"declares 5 data rows \(5 vertex\) but the file has 3"),
+    (3, "0 0 0 0 0 1 1 0 0 0 0 1 0 1 0 0 0 1\n", r"declares 3 data rows \(3 vertex\) but the file has 1"),
+    (3, "0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0\n", "vertex row 2 has 4 values, the header declares 6"),
+    (3, "0 0 0 0 0 1\n1 0 0 0 0 1 7\n0 1 0 0 0 1\n", "vertex row 1 has 7 values"),
+    (2, "0 0 0 0 0 1\n1 0 zero 0 0 1\n", "not a number"),
+])
+def test_malformed_ascii_point_ply_is_refused(tmp_path, count, body, match):
+    """An ASCII PLY whose rows disagree with its header is refused naming the file (before: a truncated
+    file silently lost points, three points on one line read as one, a short row gave numpy's traceback)."""
+    path = tmp_path / "bad.ply"
+    path.write_text(_PLY6.format(count) + body)
+    with pytest.raises(pm.PlodError, match=match) as exc:
+        load_points(path)
+    assert "bad.ply" in str(exc.value) and "\n" not in str(exc.value)
+    path.write_text(_PLY6.format(2) + "0 0 0 0 0 1\n1 0 0 0 0 1\n\n")  # a trailing blank line is fine
+    np.testing.assert_array_equal(load_points(path)[0], [[0, 0, 0], [1, 0, 0]])
+
+
+def test_bad_paths_indices_and_values_are_one_line_errors(tmp_path):
+    P, N = optim.points_from_mesh(*optim.bumpy_sphere(2))[:2]
+    h = build_points(P, N)
+    cases = [
+        (lambda: save_points(tmp_path, P, N), "is a directory"),
+        (lambda: (tmp_path / "f.ply").write_text("x") and save_points(tmp_path / "f.ply" / "x.ply", P, N),
+         "a file is in the way"),
+        (lambda: load_points(None), "load_points: path must be a file name"),
+        (lambda: load_points(3), "load_points: path must be a file name"),
+        (lambda: h.srgb([h.n_nodes]), rf"srgb: node indices must lie in \[0, {h.n_nodes}\)"),
+        (lambda: h.srgb([-1]), r"got -1\.\.-1"),  # before: wrapped to the last node
+        (lambda: splat_discs(h, np.array([2 ** 63], np.uint64)), "got 9223372036854775808"),  # was -9.2e18
+        (lambda: build_points(P + 1j, N), "points must be real numbers, got complex"),
+        (lambda: build_points(P, N * (1 + 1j)), "normals must be real numbers"),
+        (lambda: build_points(P, N, np.full(P.shape, 0.5 + 0j)), "colors must be real numbers"),
+        (lambda: build_points(P, N, np.full(P.shape, 1000, np.uint16)),
+         r"integer colors must lie in \[0, 255\] \(got 1000\.\.1000\)"),
+        (lambda: build_points(P, N, leaf_k=10 ** 9), "leaf_k must be a positive integer up to 64"),
+        (lambda: traverse(h, "view"), "traverse: view must be an optim.View"),
+    ]
+    for fn, match in cases:
+        with pytest.raises(pm.PlodError, match=match) as exc:
+            fn()
+        assert "\n" not in str(exc.value)
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0.0]])
+    optim.save_mesh(tmp_path / "flat.ply", v, np.array([[0, 1, 2], [0, 2, 1]]))
+    with pytest.raises(pm.PlodError, match=r"flat\.ply.*every face is degenerate"):  # before: (0, 3) arrays
+        load_points(tmp_path / "flat.ply")
+    np.testing.assert_allclose(h.srgb([0, h.n_nodes - 1]), h.srgb()[[0, -1]])
+    np.testing.assert_allclose(build_points(P, N, np.full(P.shape, 255, np.uint8)).srgb([0]), 1.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize("toml, match", [
+    ('point_cloud = ["no"]', "'point_cloud' must be a list of true / false"),
+    ('names = [3]', "'names' must be a list of strings"),
+    ('object_deg = ["a"]', r"'object_deg' must be a list of object sizes in \(0, 180\)"),
+    ('object_deg = [10.0, 10]', "'object_deg' must be a list of different values"),
+    ('curve_gaze_deg = [5.0, 5.0]', "'curve_gaze_deg' must be a list of different values"),
+    ('min_px = -1', "'min_px' must be a finite number of pixels >= 0"),
+    ('leaf_k = 0', r"'leaf_k' must be an integer in \[1, 64\]"),
+    ('leaf_k = true', r"'leaf_k' must be an integer in \[1, 64\]"),
+    ('repeats = -3', "'repeats' must be an integer >= 1"),
+    ('gaze_error_deg = -1.0', "'gaze_error_deg' must be a finite angle"),
+    ('directions = [[0, 0, 0]]', "'directions' must be a list of nonzero 3-vectors"),
+    ('paths = ["sphere:x"]', "must be 'sphere:SUBDIV' with an integer"),
+    ('paths = ["no/such/file.ply"]', "point file 'no/such/file.ply' does not exist"),
+])
+def test_points_config_is_checked_before_any_work(tmp_path, toml, match):
+    """Every config value is checked before the output folder is made (before: ["no"] counted as true,
+    names = [3] failed after the work, min_px = -1 after the folder was made, repeats = -3 was taken, a
+    repeated object_deg overwrote its own figure)."""
+    from experiments import points as P
+
+    lines = {"paths": '["sphere:2"]', "names": '["s"]', "point_cloud": "[false]", "directions": "[[0, 0, 1]]",
+             "ups": "[[0, 1, 0]]"}
+    key, value = toml.split(" = ", 1)
+    lines[key] = value
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("".join(f"{k} = {v}\n" for k, v in lines.items()))
+    out = tmp_path / "rep"
+    with pytest.raises(pm.PlodError, match=match) as exc:
+        P.main(["--quick", "--no-judge", "--config", str(cfg), "--out", str(out)])
+    assert "\n" not in str(exc.value) and not out.exists()

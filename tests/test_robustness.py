@@ -328,3 +328,35 @@ def test_cli_empty_plod_cache_means_no_cache(capsys, cli_files, monkeypatch):
     assert json.loads(capsys.readouterr().out)["tree_cache"] == "off"
     assert not (cli_files["dir"] / "home").exists()
     assert "empty string means no cache" in " ".join(cli.build_parser().format_help().split())
+
+
+def test_protect_takes_one_path_or_several(tmp_path):
+    """``protect`` may be one path (str or Path) or a sequence of them (before: a str was iterated per
+    character, so the input was overwritten; a Path raised TypeError); other values are PlodErrors, as are
+    a target that is a directory or lies below a file (before: IsADirectoryError, FileExistsError)."""
+    p = tmp_path / "in.txt"
+    p.write_text("input")
+    for protect in (str(p), p, [str(p)], (None, p)):
+        with pytest.raises(PlodError, match="refusing to overwrite"):
+            atomic_write_text(p, "output", protect=protect)
+    for protect in (3, [3]):
+        with pytest.raises(PlodError, match="protect must be a path or a sequence of paths"):
+            atomic_write_text(tmp_path / "other.txt", "output", protect=protect)
+    with pytest.raises(PlodError, match="it is a directory"):
+        atomic_write_text(tmp_path, "output")
+    with pytest.raises(PlodError, match="a file is in the way of its folder"):
+        atomic_write_text(p / "below" / "x.txt", "output")
+    assert p.read_text() == "input" and [q.name for q in tmp_path.iterdir()] == ["in.txt"]
+    atomic_write_text(tmp_path / "out.txt", "ok", protect=str(p))  # a different target is written
+    assert (tmp_path / "out.txt").read_text() == "ok"
+    # save_mesh made a tuple of its protect itself (a str per character): the input mesh was overwritten
+    import optim
+
+    v, f = optim.bumpy_sphere(1)
+    m = tmp_path / "m.ply"
+    optim.save_mesh(m, v, f)
+    before = m.read_bytes()
+    for protect in (str(m), m):
+        with pytest.raises(PlodError, match="refusing to overwrite"):
+            optim.save_mesh(m, v[:], f[:4], protect=protect)
+    assert m.read_bytes() == before

@@ -105,3 +105,21 @@ def test_bad_input_names_the_problem(kw, msg):
 def test_previous_needs_dt():
     with pytest.raises(ValueError, match="dt_s"):
         View(eye=(0, 0, 5), previous=View(eye=(0, 0, 4)))
+
+
+def test_a_gaze_direction_keeps_its_pixel_far_from_0():
+    """A (G, 3) gaze direction is rotated into the camera, not added to the eye: the view scaled by 2^k
+    puts it on the same pixel (before: eye + g rounded g away, 4.6 deg off at 2^49, and at 2^56 it
+    "pointed behind the camera")."""
+    g = [[0.3, 0.1, -1.0], [-0.2, 0.4, -0.7]]
+    ref = View(eye=(3, 2, 10), target=(0, 0, 0), gaze=g).gaze_px
+    assert not np.allclose(ref, 960.0)
+    for k in range(0, 60, 7):
+        s = 2.0 ** k
+        v = View(eye=(3 * s, 2 * s, 10 * s), target=(0, 0, 0), gaze=g)
+        np.testing.assert_array_equal(v.gaze_px, ref)
+    # an ordinary view: the same pixel as projecting the point eye + g
+    v = View(eye=(0.3, -1.2, 4.0), target=(0.1, 0.2, -0.3), gaze=g)
+    np.testing.assert_allclose(v.gaze_px, v.project(v.eye + np.array(g))[0], rtol=1e-13)
+    with pytest.raises(ValueError, match="gaze direction is zero"):
+        View(eye=(0, 0, 5), gaze=[0, 0, 0])
