@@ -37,7 +37,7 @@ def register(sub) -> None:
 
 
 # config ``kind`` -> the module under experiments/ whose ``run_config(path, out, progress)`` runs it
-KINDS = ("terrain", "terrain_motion", "accuracy_motion")
+KINDS = ("terrain", "terrain_motion", "accuracy_motion", "points")
 
 
 def _config_kind(path) -> str | None:

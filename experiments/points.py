@@ -41,6 +41,7 @@ from experiments.accuracy import IMPERCEPTIBLE_TARGET as IMPERCEPTIBLE_JOD
 from pmetric import PlodError, atomic_write_text
 
 DEFAULTS = {
+    "kind": "points",
     "out": "reports/points",
     "paths": ["../shared/data/meshes/lucy-100k.ply", "../shared/data/meshes/dragon-100k.obj", "sphere:6"],
     "names": ["lucy-100k", "dragon-100k (point-cloud PLY)", "bumpy sphere (coloured)"],
@@ -448,6 +449,32 @@ def run(cfg, out: Path, progress=None):
     return rows, meta
 
 
+def _write_all(cfg, command: str, progress=None) -> Path:
+    """Check ``cfg``, run it and write every output into its ``out`` folder (made here); returns it."""
+    _check_sets(cfg)  # before the folder is made (run checks again: it is also called without this)
+    out = check_out_dir(repo_path(cfg["out"]))
+    if out.exists() and not out.is_dir():
+        raise PlodError(f"output folder {str(out)!r} is a file, not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    rows, meta = run(cfg, out, progress)
+    _summary_figures(rows, cfg, out)
+    write_report(rows, meta, cfg, command, out)
+    atomic_write_text(out / "results.json", json.dumps(dict(sets=meta, rows=rows), indent=1, default=float) + "\n")
+    save_run_info(out, cfg, cfg["seed"], command)
+    return out
+
+
+def run_config(path, out=None, progress=None) -> Path:
+    """``plod experiment CONFIG`` for a config of ``kind = "points"`` (e.g. ``configs/points_fig7.toml``):
+    the experiment with the config's overrides into ``out`` (default the config's); returns the folder."""
+    cfg = load_config(path, DEFAULTS)
+    if cfg["kind"] != "points":
+        raise PlodError(f"points: config kind must be 'points', got {cfg['kind']!r}")
+    if out is not None:
+        cfg["out"] = str(out)
+    return _write_all(cfg, f"python -m experiments.points --config {path}", progress)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.points", description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default=None, help="TOML overrides of the defaults (unknown keys are refused)")
@@ -460,11 +487,7 @@ def main(argv=None) -> int:
         cfg["out"] = args.out
     if args.no_judge:
         cfg["judge"] = False
-    _check_sets(cfg)  # before the folder is made (run checks again: it is also called without main)
-    out = check_out_dir(repo_path(cfg["out"]))
-    if out.exists() and not out.is_dir():
-        raise PlodError(f"--out {str(out)!r} is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    _check_sets(cfg)
     command = "python -m experiments.points " + " ".join(argv if argv is not None else sys.argv[1:])
     from experiments._progress import rich_progress
 
@@ -475,11 +498,8 @@ def main(argv=None) -> int:
             else:
                 print(f"[points] {stage}", file=sys.stderr, flush=True)
 
-        rows, meta = run(cfg, out, progress)
-    _summary_figures(rows, cfg, out)
-    write_report(rows, meta, cfg, command, out)
-    atomic_write_text(out / "results.json", json.dumps(dict(sets=meta, rows=rows), indent=1, default=float) + "\n")
-    save_run_info(out, cfg, cfg["seed"], command)
+        out = _write_all(cfg, command, progress)
+    rows = json.loads((out / "results.json").read_text())["rows"]
     print(json.dumps([{k: r[k] for k in ("set", "object_deg")} | {"size": r["size"]["splats"],
                       "perceptual_0": r["perceptual_0"]["splats"],
                       f"perceptual_{float(cfg['gaze_deg']):g}": r[f"perceptual_{float(cfg['gaze_deg']):g}"]["splats"]}

@@ -370,6 +370,34 @@ def test_points_command_quick(tmp_path):
         P.main(["--quick", "--config", str(bad), "--out", str(out)])
 
 
+def test_plod_experiment_runs_a_points_config(tmp_path, capsys):
+    """``plod experiment CONFIG`` with ``kind = "points"`` (configs/points_fig7.toml) runs this experiment
+    (before: refused, "unknown config key 'kind'"); its rows equal ``python -m experiments.points``'s."""
+    import json
+
+    from experiments import points as P
+    from experiments.cli import main as cli
+
+    body = ('paths = ["sphere:3"]\nnames = ["s"]\npoint_cloud = [false]\ndirections = [[0.0, 0.0, 1.0]]\n'
+            'ups = [[0.0, 1.0, 0.0]]\nobject_deg = [4.0]\ncurve_gaze_deg = [0.0, 29.0]\nrepeats = 1\n'
+            'judge = false\n')
+    (tmp_path / "k.toml").write_text('kind = "points"\n' + body)
+    (tmp_path / "p.toml").write_text(body)
+    try:
+        assert cli(["experiment", str(tmp_path / "k.toml"), "--out", str(tmp_path / "a")]) == 0
+        assert P.main(["--config", str(tmp_path / "p.toml"), "--out", str(tmp_path / "b")]) == 0
+    except RuntimeError as exc:  # no OpenGL context on this machine
+        pytest.skip(str(exc))
+    rows = [json.loads((tmp_path / d / "results.json").read_text())["rows"] for d in "ab"]
+    counts = [[(r["size"]["splats"], r["perceptual_0"]["splats"], r["curve"]) for r in x] for x in rows]
+    assert counts[0] == counts[1] and (tmp_path / "a" / "report.md").stat().st_size > 0
+    (tmp_path / "t.toml").write_text('kind = "terrain"\n' + body)
+    with pytest.raises(pm.PlodError, match="config kind must be 'points'"):
+        P.run_config(tmp_path / "t.toml", tmp_path / "c")
+    assert not (tmp_path / "c").exists()
+    capsys.readouterr()
+
+
 def test_a_far_point_cloud_traverses_like_the_same_cloud_near_0():
     """Georeferenced scans lie far from 0 for their size: the float32 columns are relative to an origin
     (optim.local_origin), so the cloud moved by 1e7 draws the same splats (before: about 1 unit of
