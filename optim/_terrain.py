@@ -51,16 +51,19 @@ class Heightfield:
 
     ``heights`` (N, N) metres (row 0 at z = 0), ``spacing`` metres between samples. Precomputes per
     level ``l`` (0..L) the nested maximum vertical error (m) of each square against its two triangles
-    (diagonal from corner (0, 0) to (1, 1)), and its minimum and maximum height (m) for culling.
+    (diagonal from corner (0, 0) to (1, 1)), and its minimum and maximum height (m) for culling. Keeps
+    its own read-only copy of the heights.
     Raises :class:`PlodError` for an empty grid, a grid that is not square ``2^n + 1``, non-finite
     heights, a non-positive spacing, or heights or an extent beyond ``1e12`` m.
     """
 
     def __init__(self, heights, spacing: float = 1.0):
         try:  # an own copy: the pyramid below must describe the heights the mesh is made from
+            if np.asarray(heights).dtype.kind == "c":  # numpy would drop the imaginary part
+                raise ValueError
             h = np.array(heights, dtype=np.float64)
         except (TypeError, ValueError):
-            raise PlodError("terrain: the heights must be numbers (an (N, N) array)") from None
+            raise PlodError("terrain: the heights must be real numbers (an (N, N) array)") from None
         if h.size == 0:
             raise PlodError("terrain: the heightfield is empty")
         if h.ndim != 2 or h.shape[0] != h.shape[1]:
@@ -263,7 +266,8 @@ class TerrainCamera:
 class TerrainCriteria:
     """Which of Reddy's criteria are on [Red01 Table 1], and the display cap.
 
-    ``xi``: the display's highest frequency (cycles/deg) = 1 / (2 pixel angle in deg) [Red01 Eq 5].
+    ``xi``: the display's highest frequency (cycles/deg) = 1 / (2 pixel angle in deg) [Red01 Eq 5], in
+    [1e-6, 1e30] (what the float32 acuity model holds) or None (no cap).
     ``velocity_deg_s``: None measures each square's retinal velocity from the previous cameras; a number
     imposes that uniform velocity (deg/s, Figure 4's axis). ``tol``: vertical error (m) below which a
     square counts as flat."""

@@ -156,7 +156,8 @@ def test_velocity_and_eccentricity_lower_the_count():
     (np.zeros((9, 17)), "square"),
     (np.where(np.eye(9) > 0, np.nan, 0.0), "non-finite"),
     (np.full((9, 9), 1e300), "within 1e"),
-    ([["a"] * 3] * 3, "must be numbers"),
+    ([["a"] * 3] * 3, "must be real numbers"),
+    (np.zeros((9, 9)) + 1j, "must be real numbers"),  # 2026-12-07: the imaginary part was dropped
 ])
 def test_bad_heightfields(z, msg):
     with pytest.raises(PlodError, match=msg.replace("^", r"\^").replace("+", r"\+")) as err:
