@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 from pmetric import PlodError
 
@@ -106,11 +105,11 @@ def judge_files(args) -> dict:
         size = tuple(int(x) for x in vals)
         if any(x != int(x) or not 16 <= x <= 8192 for x in vals):  # FovVideoVDP fails below 4 pixels
             raise PlodError(f"--size must be two integers in 16..8192, got {args.size!r}")
+    from experiments._paths import check_mesh_input
+
     meshes = {}
     for key in ("original", "result"):
-        path = Path(getattr(args, key))
-        if not path.is_file():
-            raise PlodError(f"mesh file not found: {str(path)!r}")
+        path = check_mesh_input(getattr(args, key))
         meshes[key] = optim.load_mesh(path, normals=True)  # relit: shaded from the file's normals if it has them
     # the view is framed on the original: one without extent (all vertices at one point) frames nothing
     optim.validate_mesh(*meshes["original"][:2], name=f"the original mesh {str(args.original)!r}",
@@ -136,7 +135,8 @@ def judge_files(args) -> dict:
         # a result wholly outside the original's frame (or behind the eye) renders as the empty image: its
         # score is that image's, which the table says rather than leaves to be guessed
         rows.append({"mode": mode, "jod": res.jod, "flip_mean": res.flip_mean, "seconds": round(res.seconds, 3),
-                     "png": None if png is None else str(png), "result_drawn": bool(res.test.max() > res.test.min())})
+                     "png": None if png is None else str(png), "result_drawn": bool(res.test.max() > res.test.min()),
+                     "original_drawn": bool(res.reference.max() > res.reference.min())})
     h, w = res.reference.shape[:2]
     return {
         "original": str(args.original), "result": str(args.result),
@@ -169,7 +169,11 @@ def run(args) -> int:
         table.add_row(r["mode"], f"{r['jod']:.3f}", f"{r['flip_mean']:.4f}", f"{r['seconds']:.1f}", r["png"] or "")
     console = Console()
     console.print(table)
-    empty = [r["mode"] for r in res["results"] if not r["result_drawn"]]
+    blank = [r["mode"] for r in res["results"] if not r["original_drawn"]]
+    empty = [r["mode"] for r in res["results"] if not r["result_drawn"] and r["original_drawn"]]
+    if blank:  # e.g. --object-deg below a pixel: the note below would blame the result
+        console.print(f"note: the original draws nothing in this view ({', '.join(blank)}): it is under a pixel "
+                      "or outside the frame (check --object-deg and --size), so two empty images are compared")
     if empty:
         console.print(f"note: the result draws nothing in this view ({', '.join(empty)}): it lies wholly outside "
                       "the original's frame or behind the eye, so it is scored as the empty image")

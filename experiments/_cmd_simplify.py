@@ -53,13 +53,13 @@ def register(sub) -> None:
     p.add_argument("--fov", metavar="DEG", default=None,
                    help="vertical field of view of the camera, deg (default: what the screen subtends)")
     p.add_argument("--screen-deg", metavar="DEG", default=None,
-                   help="horizontal angle the screen subtends at the viewer, deg (default 46)")
-    p.add_argument("--distance-m", metavar="M", default=None, help="viewing distance, m (default 0.63)")
+                   help="horizontal angle the screen subtends at the viewer, 0.5..180 deg (default 46)")
+    p.add_argument("--distance-m", metavar="M", default=None, help="viewing distance, 0.01..1000 m (default 0.63)")
     p.add_argument("--gaze", metavar="U,V", action="append", default=None,
                    help="gaze point in image pixels; repeat for several viewers (default: screen centre)")
     p.add_argument("--no-gaze", action="store_true", help="no gaze information: treat every node as foveal")
     p.add_argument("--gaze-error", metavar="DEG", default="1.0",
-                   help="gaze uncertainty, deg (1 for an eye tracker, 15 for head tracking; default 1)")
+                   help="gaze uncertainty, 0..180 deg (1 for an eye tracker, 15 for head tracking; default 1)")
     p.add_argument("--light", metavar="DX,DY,DZ[,AMBIENT]", default=None,
                    help="the renderer relights the mesh from its own normals with this directional light "
                         "(direction toward the light, object space; ambient default 0.15): fold contrast "
@@ -84,7 +84,8 @@ def register(sub) -> None:
                    help="vertex normals written with the mesh for a renderer that relights it: region (default: "
                         "each vertex the mean input normal of the surface it stands for, which shades closest "
                         "to the input), faces (recomputed from the simplified faces) or none (the renderer "
-                        "makes its own, as faces; with --cull-back-faces the whole cut's are written)")
+                        "makes its own, as faces; with --cull-back-faces the whole cut's are written). Written "
+                        "in .ply, .obj and .glb; .off and .stl hold no normals")
     p.add_argument("--out", metavar="OUT.ply", default=None, help="write the simplified mesh here")
     p.add_argument("--render", metavar="OUT.png", default=None,
                    help="render original and simplified for this view, with their FLIP difference, to a PNG")
@@ -261,7 +262,7 @@ def tree_for_file(path: Path, method: str, *, use_cache: bool = True, progress: 
     entry = root / (f"{key}.npz" if k == 0 else f"{key}.s{k}.npz")
     try:
         tree.save(entry)
-    except OSError:
+    except (OSError, PlodError):  # PlodError: PLOD_CACHE is a file, or lies below one
         pass  # a read-only cache never stops the command
     return tree, "miss", load_s, k, context_path(entry)
 
@@ -276,8 +277,8 @@ def save_context_quietly(tree, ctx: Path | None) -> str:
         return "off"
     try:
         return "saved" if optim.save_context(tree, ctx) else "off"
-    except OSError:
-        return "off"  # a read-only cache never stops the command
+    except (OSError, PlodError):
+        return "off"  # a read-only cache (or one that is a file) never stops the command
 
 
 def build_view(vertices, args, unit_exp: int = 0):
@@ -293,9 +294,9 @@ def build_view(vertices, args, unit_exp: int = 0):
         target = None if target is None else np.ldexp(target, unit_exp)
     up = _vector("--up", args.up, 3)
     fov = _number("--fov", args.fov, hi=180.0)
-    screen = _number("--screen-deg", args.screen_deg, hi=180.0)
-    dist = _number("--distance-m", args.distance_m)
-    gaze_err = _number("--gaze-error", args.gaze_error, strict=False)
+    screen = _number("--screen-deg", args.screen_deg, lo=0.5, hi=180.0, strict=False)
+    dist = _number("--distance-m", args.distance_m, lo=0.01, hi=1000.0, strict=False)  # m: 1 cm .. 1 km
+    gaze_err = _number("--gaze-error", args.gaze_error, hi=180.0, strict=False)  # deg
     if args.no_gaze and args.gaze:
         raise PlodError("--gaze and --no-gaze cannot be combined")
     gaze = None if args.no_gaze else "center"
@@ -324,6 +325,8 @@ def _check_view_flags(args) -> None:
         v = _vector(flag, text, 3)
         if flag == "--up" and v is not None and not np.any(v):
             raise PlodError(f"--up must be a nonzero vector, got {text!r}")
+        if v is not None and np.abs(v).max() > 1e150:  # the view's bound (its lengths would overflow)
+            raise PlodError(f"{flag} must lie within 1e150 of 0, got {text!r}")
     rest = argparse.Namespace(**{**vars(args), "eye": None, "target": None, "up": None})
     build_view(np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), rest)
 
@@ -343,8 +346,9 @@ def _outputs(args, mesh_path: Path):
     if render_path is not None:
         if render_path.suffix.lower() != ".png":
             raise PlodError(f"--render: the picture is written as PNG; use a .png path, got {str(render_path)!r}")
-        render_size = tuple(int(x) for x in _vector("--render-size", args.render_size, 2))
-        if min(render_size) <= 0 or max(render_size) > 8192:
+        wh = _vector("--render-size", args.render_size, 2)
+        render_size = tuple(int(x) for x in wh)
+        if (wh != np.round(wh)).any() or min(render_size) <= 0 or max(render_size) > 8192:  # 3.7 was taken as 3
             raise PlodError(f"--render-size must be two integers in 1..8192, got {args.render_size!r}")
     return budget, out, render_path, render_size
 
@@ -386,8 +390,9 @@ def simplify(args) -> dict:
     mesh_path = Path(args.mesh)
     budget, out, render_path, render_size = _outputs(args, mesh_path)
     model = make_model(args.model)
-    if not mesh_path.is_file():
-        raise PlodError(f"mesh file not found: {str(mesh_path)!r}")
+    from experiments._paths import check_mesh_input
+
+    check_mesh_input(mesh_path)
     _check_view_flags(args)
     margin = _number("--cull-back-faces", args.cull_back_faces, hi=90.0, strict=False)  # deg, or None
     if args.normals not in (*optim.NORMALS, "none"):
@@ -427,6 +432,10 @@ def simplify(args) -> dict:
     v2, f2, c2, n2 = mesh_parts(mesh)  # no normals with --normals none (unless --cull-back-faces)
     if margin is not None and len(f2) == 0:
         raise PlodError("every triangle of the cut faces away from the eye: nothing to write (check --eye)")
+    if margin is not None:  # the dropped back faces' own vertices are not written (.ply kept them, .obj not)
+        from optim._mesh import compact
+
+        v2, f2, c2, n2 = compact(v2, f2, c2, n2)
     if unit_exp:
         v2 = np.ldexp(np.asarray(v2, np.float64), -unit_exp)  # back to the file's units, exactly
     flips = optim.cut_flips(tree, cut)
@@ -448,7 +457,9 @@ def simplify(args) -> dict:
         "output_triangles": int(f2.shape[0]),
         "cut_triangles": int(cut.triangles),  # with --cull-back-faces: before the back faces were dropped
         "cull_back_faces_margin_deg": margin,
-        "normals": "none" if n2 is None else (normals or "faces"),  # the vertex normals written with the mesh
+        # the vertex normals written with the mesh (.off and .stl hold none)
+        "normals": "none" if n2 is None or (out is not None and out.suffix.lower() in (".off", ".stl"))
+        else (normals or "faces"),
         "output_vertices": int(v2.shape[0]),
         "metric": args.metric,
         "model": type(model).__name__,

@@ -41,6 +41,17 @@ def model_files(spec) -> list[Path]:
     return out
 
 
+def check_mesh_input(path) -> Path:
+    """``Path(path)`` of an input mesh file that exists; PlodError saying what it is otherwise (a folder
+    was reported as "not found")."""
+    p = Path(path)
+    if p.is_dir():
+        raise PlodError(f"{str(p)!r} is a directory, not a mesh file")
+    if not p.is_file():
+        raise PlodError(f"mesh file not found: {str(p)!r}")
+    return p
+
+
 def check_output(flag: str, path, *, suffixes: Iterable[str], inputs: Iterable = ()) -> Path:
     """``Path(path)`` once it is a writable output; else ``PlodError`` naming ``flag``.
 

@@ -10,6 +10,7 @@ namespace and returning an exit code. Errors meant for users are raised as ``pme
 
 from __future__ import annotations
 
+import re
 import sys
 
 # Nothing else is imported at module level (argparse and the rest inside the functions): the console
@@ -129,12 +130,31 @@ def _repair_xla_cache(xla: "Path") -> list:
     return removed
 
 
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--light -1,0,0`` as ``--light=-1,0,0``: argparse takes a value that starts with '-' for an option
+    unless it is a single negative number (``--eye -2,1,1`` was "expected one argument"). No plod option
+    or positional starts with '-' and a digit, so such a token after an option is that option's value."""
+    out, i = [], 0
+    while i < len(argv):
+        tok = argv[i]
+        if tok == "--":  # the rest are positionals
+            return out + list(argv[i:])
+        if (tok.startswith("--") and "=" not in tok and i + 1 < len(argv)
+                and re.match(r"-(\d|\.\d)", argv[i + 1])):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(tok)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     import warnings
 
     warnings.filterwarnings("ignore", message=".*JAXopt is no longer maintained.*", category=DeprecationWarning)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -18,8 +18,10 @@ __all__ = ["compact", "fast_simplify", "meshopt_simplify", "nearest_colors"]
 
 def compact(vertices, faces, colors=None):
     """``(vertices, faces int32, colors)`` with only the vertices ``faces`` uses, renumbered in order."""
-    used, inv = np.unique(faces.ravel(), return_inverse=True)
-    return vertices[used], inv.reshape(-1, 3).astype(np.int32), None if colors is None else colors[used]
+    from optim._mesh import compact as compact_mesh
+
+    v, f, c = compact_mesh(vertices, faces, colors)
+    return v, np.asarray(f).reshape(-1, 3).astype(np.int32), c
 
 
 def meshopt_simplify(vertices, faces, target, colors=None):

@@ -292,18 +292,21 @@ def _drop_bad_faces(f: np.ndarray, nv: int, name: str):
     return f, int(degen.sum()), int(n_dup)
 
 
+def compact(vertices, faces, *per_vertex):
+    """``(vertices, faces, *per_vertex)`` with only the vertices ``faces`` use, renumbered in their order;
+    ``per_vertex`` arrays (V, ...) (colours, normals; None passes through) are kept alike."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[np.asarray(faces).ravel()] = True
+    if used.all():
+        return (vertices, faces, *per_vertex)
+    remap = np.cumsum(used) - 1
+    return (vertices[used], remap[faces], *(None if a is None else np.asarray(a)[used] for a in per_vertex))
+
+
 def _drop_unreferenced(v, f, c):
     """Drop vertices no face uses, renumbering the faces (order of the rest kept)."""
-    nv = v.shape[0]
-    used = np.zeros(nv, dtype=bool)
-    used[f.ravel()] = True
-    n_unref = int(nv - used.sum())
-    if n_unref:
-        remap = np.cumsum(used) - 1
-        f = remap[f]
-        v = v[used]
-        if c is not None:
-            c = c[used]
+    n_unref = int(v.shape[0] - np.count_nonzero(np.bincount(f.ravel(), minlength=v.shape[0])))
+    v, f, c = compact(v, f, c)
     return v, f, c, n_unref
 
 
@@ -393,8 +396,11 @@ def load_mesh(path: str | os.PathLike, *, normals: bool = False):
         return vertices, faces.astype(np.int32), colors
     nrm = None
     if given is not None and given[1].shape == vertices.shape and np.isfinite(given[1]).all():
-        length = np.linalg.norm(given[1], axis=1, keepdims=True)
-        nrm = np.divide(given[1], length, out=np.zeros_like(given[1]), where=length > 0)
+        from ._normal_cube import unit_any_length
+
+        nrm = unit_any_length(given[1])  # a normal of no direction on a drawn vertex: as if none were given
+        if not np.abs(nrm[np.unique(faces)]).max(axis=1).all():  # (zeros shaded with the ambient light only)
+            nrm = None
     return vertices, faces.astype(np.int32), colors, nrm
 
 

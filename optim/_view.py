@@ -49,7 +49,10 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _vec3(name: str, x) -> np.ndarray:
+_VEC_MAX = 1e150  # eye, target and up components: their squares stay finite in float64
+
+
+def _vec3(name: str, x, bounded: bool = True) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
@@ -58,6 +61,9 @@ def _vec3(name: str, x) -> np.ndarray:
         raise PlodError(f"View: {name} must be three numbers (shape (3,)), got shape {a.shape}")
     if not np.isfinite(a).all():
         raise PlodError(f"View: {name} must be finite, got {a.tolist()}")
+    if bounded and np.abs(a).max() > _VEC_MAX:  # beyond, lengths and dot products overflow ("eye and target coincide")
+        raise PlodError(f"View: {name} must lie within {_VEC_MAX:g} of 0 (a mesh is refused beyond 1e15), got "
+                        f"{a.tolist()}")
     return _frozen(a)
 
 
@@ -157,8 +163,8 @@ class View(eqx.Module):
             fov_deg = math.degrees(2 * math.atan(0.5 * h * py / float(display.distance)))
         self.fov_deg = _positive("fov_deg (vertical field of view, deg)", fov_deg, upper=180.0)
         ge = real_or_nan(gaze_error_deg)
-        if not math.isfinite(ge) or ge < 0:
-            raise PlodError(f"View: gaze_error_deg must be a finite number >= 0, got {gaze_error_deg!r}")
+        if not 0 <= ge <= 180:  # an angle (1e300 overflowed the float32 terms)
+            raise PlodError(f"View: gaze_error_deg must be an angle in [0, 180] deg, got {gaze_error_deg!r}")
         self.gaze_error_deg = ge
         bg = real_or_nan(background)
         if not (0.0 <= bg <= 1.0):
@@ -196,19 +202,20 @@ class View(eqx.Module):
         if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
             raise PlodError(f"View.framing: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
         deg = _positive("object_deg (deg)", object_deg, upper=180.0)
-        d = _vec3("direction", direction)
-        if np.linalg.norm(d) == 0:
+        d = _vec3("direction", direction, bounded=False)
+        if not np.any(d):
             raise PlodError("View.framing: direction must be nonzero")
+        du = unit_any_length(d)  # any length: a 1e-320 direction's norm underflowed ("must be nonzero")
         centre = 0.5 * (v.min(0) + v.max(0))
         radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
         radius = radius if radius > 0 else 1.0
         dist = radius / math.sin(math.radians(deg) / 2)
-        eye = centre + unit_any_length(d) * dist  # (a 1e308-long direction: its norm would overflow)
+        eye = centre + du * dist  # (a 1e308-long direction: its norm would overflow)
         up = _vec3("up", up)
         if not np.any(up):  # only an up parallel to the direction is replaced below, not a missing one
             raise PlodError("View.framing: up must be a nonzero vector, got (0, 0, 0)")
-        if np.linalg.norm(np.cross(d, up)) < 1e-6 * np.linalg.norm(d) * max(np.linalg.norm(up), 1e-300):
-            up = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 * np.linalg.norm(d) else np.array([0.0, 0.0, 1.0])
+        if np.linalg.norm(np.cross(du, up)) < 1e-6 * max(np.linalg.norm(up), 1e-300):
+            up = np.array([1.0, 0.0, 0.0]) if abs(du[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
         return cls(eye=eye, target=centre, up=up, **kw)
 
     # ------------------------------------------------------------------ camera

@@ -245,6 +245,13 @@ class Display(eqx.Module):
             lv, ll = jnp.zeros((0,)), jnp.zeros((0, 3))
         self.width, self.height, self.distance = _float(width), _float(height), _float(distance)
         self.peak_luminance, self.black_level, self.gamma = _float(peak_luminance), _float(black_level), _float(gamma)
+        for name, val, given in (("width (m)", self.width, width), ("height (m)", self.height, height),
+                                 ("distance (m)", self.distance, distance),
+                                 ("peak_luminance (cd/m2)", self.peak_luminance, peak_luminance)):
+            a = _concrete(val)  # stored in the default float type: 1e-100 m became 0, 1e300 inf
+            if a is not None and not (np.isfinite(a).all() and (a > 0).all()):
+                raise PlodError(f"Display: {name} {float(_concrete(given))!r} is outside what {a.dtype} holds "
+                                f"(stored as {float(a)!r})")
         self.lut_levels, self.lut_luminance = lv, ll
         self.resolution = (rx, ry)
         self.transfer = transfer

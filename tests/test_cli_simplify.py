@@ -100,6 +100,25 @@ def test_cull_back_faces_counts_front_facing_triangles(capsys, mesh_file, tmp_pa
     v, f, _ = optim.load_mesh(out)
     assert f.shape[0] == res["output_triangles"] and not optim.facing_away(v, f, np.array([0.0, 0.0, 4.0])).any()
     assert b"property float nx" in out.read_bytes()[:400]
+    # 2026-12-07: the .ply kept the dropped back faces' vertices (the .obj did not), so output_vertices
+    # disagreed between formats; .off / .stl hold no normals, where the JSON said "region"
+    assert res["output_vertices"] == len(v) == len(np.unique(f)) and res["normals"] == "region"
+    code, stdout, _ = _run(capsys, *argv, "--cull-back-faces", "--out", tmp_path / "front.off")
+    res_off = json.loads(stdout)
+    assert code == 0 and res_off["normals"] == "none" and res_off["output_vertices"] == len(v)
+
+
+def test_a_cache_that_is_a_file_does_not_stop_the_command(capsys, mesh_file, tmp_path, monkeypatch):
+    """PLOD_CACHE naming a file: the tree could not be saved and the command stopped after building it
+    (the cache is an optimisation; a read-only one never stopped the command)."""
+    blocker = tmp_path / "afile"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("PLOD_CACHE", str(blocker))
+    code, stdout, err = _run(capsys, mesh_file, "--budget", 100, "--json", "--light", "0,0,1")
+    assert code == 0, err
+    res = json.loads(stdout)
+    assert res["tree_cache"] == "miss" and res["context_cache"] == "off" and 0 < res["output_triangles"] <= 100
+    assert blocker.read_text() == "not a folder"
 
 
 def test_hybrid_tree_from_the_command_line(capsys, mesh_file):

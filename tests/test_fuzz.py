@@ -103,8 +103,20 @@ CLI_CASES = [
      ["--nsteps"]),
     ("10-seed-negative", ["fit", "{csv}", "--model", "kellyabstract", "--method", "mcmc", "--seed", "-1"], 2,
      ["--seed"]),
+    # 2026-12-07 fuzz round: a ZeroDivisionError traceback; errors naming --fov or "eye and target coincide";
+    # float32 overflow warnings; a 3.7-pixel render taken as 3; a folder reported as "not found"
+    ("11-distance-tiny", ["simplify", "{mesh}", "--budget", "50", "--distance-m", "1e-100"], 2,
+     ["--distance-m", ">= 0.01"]),
+    ("11-screen-tiny", ["simplify", "{mesh}", "--budget", "50", "--screen-deg", "1e-300"], 2, ["--screen-deg"]),
+    ("11-gaze-error-huge", ["simplify", "{mesh}", "--budget", "50", "--gaze-error", "1e300"], 2, ["--gaze-error"]),
+    ("11-eye-huge", ["simplify", "{mesh}", "--budget", "50", "--eye=1e300,0,0"], 2, ["--eye", "within 1e150"]),
+    ("11-render-size-fraction", ["simplify", "{mesh}", "--budget", "50", "--render", "{dir}/r.png",
+                                 "--render-size", "3.7,5"], 2, ["--render-size"]),
+    ("11-mesh-is-a-folder", ["simplify", "{dir}", "--budget", "50"], 2, ["is a directory, not a mesh file"]),
     # odd but valid: must work
     ("8-latin1-obj", ["simplify", "{dir}/latin1.obj", "--budget", "4", "--json"], 0, []),
+    ("11-negative-light", ["simplify", "{mesh}", "--budget", "100", "--light", "-1,0,0", "--json"], 0, []),
+    ("11-negative-eye", ["simplify", "{mesh}", "--budget", "100", "--eye", "-3,0.5,-2", "--json"], 0, []),
     ("ok-budget", ["simplify", "{mesh}", "--budget", "100", "--json"], 0, []),
 ]
 

@@ -156,6 +156,14 @@ def test_plod_judge_cli(tmp_path, capsys, vdp):
     row = json.loads(js.read_text())["results"][0]
     assert row["result_drawn"] is False and row["jod"] < 8.0
     assert all(r["result_drawn"] for r in res["results"])
+    # an object under a pixel: the original draws nothing either, and the note says so (2026-12-07: it
+    # blamed the result, "wholly outside the original's frame")
+    assert main(["judge", str(a), str(b), "--size", "32,32", "--object-deg", "0.01", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert "the original draws nothing in this view (relit)" in out and "the result draws nothing" not in out
+    assert json.loads(js.read_text())["results"][0]["original_drawn"] is False
+    assert main(["judge", str(tmp_path), str(b)]) == 2  # a folder: said so (was "not found")
+    assert "is a directory, not a mesh file" in capsys.readouterr().err
     # an original without extent frames nothing (before: framed with a radius of 1 and scored)
     dot = tmp_path / "dot.ply"
     optim.save_mesh(dot, np.zeros((3, 3)), np.array([[0, 1, 2]]))
@@ -175,8 +183,9 @@ def test_plod_judge_shades_from_the_normals_a_file_carries(tmp_path, capsys, vdp
     v, f = optim.icosphere(2)
     optim.save_mesh(plain, v, f)
     optim.save_mesh(carried, v, f, normals=np.tile([0.0, 0.0, 1.0], (len(v), 1)))
+    zero = optim.save_mesh(tmp_path / "zero.ply", v, f, normals=np.zeros((len(v), 3)))
     got = {}
-    for b in (plain, carried):
+    for b in (plain, carried, zero):
         js = tmp_path / f"{b.stem}.json"
         rc = main(["judge", str(a), str(b), "--size", "160,90", "--json", str(js)])
         err = capsys.readouterr().err
@@ -187,3 +196,7 @@ def test_plod_judge_shades_from_the_normals_a_file_carries(tmp_path, capsys, vdp
     assert got["plain"]["normals"] == {"original": "faces", "result": "faces"}
     assert got["carried"]["normals"] == {"original": "faces", "result": "file"}
     assert got["carried"]["results"][0]["jod"] < got["plain"]["results"][0]["jod"] - 1.0, got
+    # zero-length normals name no direction: shaded from the faces like NaN ones (2026-12-07: used as they
+    # were, lit by the ambient light only: 7.5 JOD for an identical mesh)
+    assert got["zero"]["normals"]["result"] == "faces"
+    assert got["zero"]["results"][0]["jod"] == pytest.approx(got["plain"]["results"][0]["jod"], abs=1e-6)

@@ -123,3 +123,23 @@ def test_a_gaze_direction_keeps_its_pixel_far_from_0():
     np.testing.assert_allclose(v.gaze_px, v.project(v.eye + np.array(g))[0], rtol=1e-13)
     with pytest.raises(ValueError, match="gaze direction is zero"):
         View(eye=(0, 0, 5), gaze=[0, 0, 0])
+
+
+def test_views_refuse_what_overflows_and_frame_from_any_direction_length():
+    """2026-12-07 fuzz round: an eye at 1e300 said "eye and target coincide" (its squared length overflowed);
+    a gaze error of 1e300 deg overflowed the float32 terms; a display 1e-100 m away was stored as 0 m (a
+    ZeroDivisionError); a 1e-320 framing direction was "zero"."""
+    with pytest.raises(ValueError, match="eye must lie within 1e"):
+        View(eye=(1e300, 0, 0))
+    with pytest.raises(ValueError, match=r"gaze_error_deg must be an angle in \[0, 180\]"):
+        View(eye=(0, 0, 5), gaze_error_deg=1e300)
+    with pytest.raises(ValueError, match="distance .m. 1e-100 is outside what float"):
+        pmetric.Display(0.5, 0.3, (1920, 1080), 1e-100)
+    verts = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    ref = View.framing(verts, direction=(0.3, 0.2, 1.0))
+    for k in (1e-300, 1e-200, 1e200):
+        v = View.framing(verts, direction=(0.3 * k, 0.2 * k, 1.0 * k))
+        np.testing.assert_allclose(v.eye, ref.eye, rtol=1e-12)
+        np.testing.assert_allclose(v.rotation, ref.rotation, atol=1e-12)
+    v = View.framing(verts, direction=(0.0, 0.0, 1e-320))  # subnormal, but a direction
+    np.testing.assert_allclose(v.eye / np.linalg.norm(v.eye), [0.0, 0.0, 1.0], atol=1e-12)
