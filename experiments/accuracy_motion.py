@@ -260,7 +260,8 @@ def run_config(path, out=None, progress=None) -> Path:
         import pyfvvdp  # noqa: F401
     except ImportError:
         raise PlodError("accuracy_motion: the judge extra is missing (pip install -e '.[judge]')") from None
-    out = check_out_dir(Path(out or repo_path(cfg["out"])))
+    out = check_out_dir(Path(out or repo_path(cfg["out"])), config=path,
+                        writes=("report.md", "results.jsonl", "video_vs_still.png"))
     rows = run(cfg, out, progress)
     head = ["# Plod's cuts judged in motion (FovVideoVDP on rendered orbits)", "",
             f"Command: `{command}`. Relit, {cfg['frames']} frames at "
