@@ -8,6 +8,7 @@ config, the git SHA, the seed, the command line and the package versions that ma
 from __future__ import annotations
 
 import json
+import math
 import platform
 import subprocess
 import sys
@@ -45,6 +46,17 @@ def check_out_dir(out: Path, config=None, writes=()) -> Path:
                 raise PlodError(f"output folder {str(out)!r}: the run would write its {name} over the config "
                                 f"{str(config)!r}; give another folder")
     return out
+
+def config_numbers(x, n=None, lo=None, strict=False, ints=False, empty=False, below=None) -> bool:
+    """``x`` is a list (of ``n`` items when given; non-empty unless ``empty``) of finite numbers (ints when
+    ``ints``; never bools) at least ``lo`` (more than ``lo`` when ``strict``) and less than ``below``: the
+    range checks of the experiments' config values (the loader checks only names and types)."""
+    if not isinstance(x, (list, tuple)) or (n is not None and len(x) != n) or (not x and not empty):
+        return False
+    kinds = (int,) if ints else (int, float)
+    return all(isinstance(v, kinds) and not isinstance(v, bool) and math.isfinite(v) and
+               (lo is None or (v > lo if strict else v >= lo)) and (below is None or v < below) for v in x)
+
 
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "jaxopt", "numpy", "scipy", "trimesh",
              "emcee", "matplotlib", "fast-simplification", "meshoptimizer", "rich")

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 import time
@@ -36,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import check_out_dir, load_config, repo_path, save_run_info
+from experiments._runinfo import check_out_dir, config_numbers, load_config, repo_path, save_run_info
 from experiments.accuracy import IMPERCEPTIBLE_TARGET as IMPERCEPTIBLE_JOD
 from pmetric import PlodError, atomic_write_text
 
@@ -66,14 +65,6 @@ SEED_FIG7 = {"size-only": 2.9e6, "perceptual, gaze 29 deg away": 0.8e6}  # Lucy,
 
 
 # ----------------------------------------------------------------------------------------------- inputs
-def _number(x, lo=None, hi=None, strict=False, integer=False) -> bool:
-    """``x`` is a finite number (an integer when ``integer``; not a bool) at least ``lo`` (more than ``lo``
-    when ``strict``) and below ``hi``."""
-    kinds = (int,) if integer else (int, float)
-    return (isinstance(x, kinds) and not isinstance(x, bool) and math.isfinite(x)
-            and (lo is None or (x > lo if strict else x >= lo)) and (hi is None or x < hi))
-
-
 def _check_sets(cfg) -> list[dict]:
     """The point sets of ``cfg`` (one dict per set); PlodError naming the key when any value the
     experiment reads is out of range (the loader checks only names and types), before any work."""
@@ -99,20 +90,19 @@ def _check_sets(cfg) -> list[dict]:
     if not all(isinstance(x, bool) for x in cfg["point_cloud"]):
         bad("point_cloud", "a list of true / false (one per point set)")
     for key in ("directions", "ups"):
-        if not all(isinstance(v, (list, tuple)) and len(v) == 3 and all(_number(x) for x in v) and any(v)
-                   for v in cfg[key]):
+        if not all(config_numbers(v, 3) and any(v) for v in cfg[key]):
             bad(key, "a list of nonzero 3-vectors of finite numbers (one per point set)")
     if not cfg["object_deg"]:
         raise PlodError("config: 'object_deg' must list at least one object size (deg)")
-    if not all(_number(x, lo=0, hi=180, strict=True) for x in cfg["object_deg"]):
+    if not config_numbers(cfg["object_deg"], lo=0, strict=True, below=180):
         bad("object_deg", "a list of object sizes in (0, 180) deg")
-    if not _number(cfg["gaze_error_deg"], lo=0):
+    if not config_numbers([cfg["gaze_error_deg"]], lo=0):
         bad("gaze_error_deg", "a finite angle >= 0 deg")
-    if not _number(cfg["min_px"], lo=0):
+    if not config_numbers([cfg["min_px"]], lo=0):
         bad("min_px", "a finite number of pixels >= 0")
-    if not _number(cfg["leaf_k"], lo=1, hi=LEAF_K_MAX + 1, integer=True):
+    if not config_numbers([cfg["leaf_k"]], lo=1, ints=True, below=LEAF_K_MAX + 1):
         bad("leaf_k", f"an integer in [1, {LEAF_K_MAX}]")
-    if not _number(cfg["repeats"], lo=1, integer=True):
+    if not config_numbers([cfg["repeats"]], lo=1, ints=True):
         bad("repeats", "an integer >= 1")
     if not isinstance(cfg["judge"], bool):
         bad("judge", "true or false")
@@ -122,8 +112,7 @@ def _check_sets(cfg) -> list[dict]:
                         f"(they name the figures), got {cfg['names']!r}")
     for key in ("gaze_deg", *(["curve_gaze_deg"] if "curve_gaze_deg" in cfg else [])):
         vals = cfg[key] if isinstance(cfg[key], list) else [cfg[key]]
-        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and 0 <= x < 80
-                   for x in vals):
+        if not config_numbers(vals, lo=0, below=80, empty=True):
             raise PlodError(f"config key {key!r} must be angles in [0, 80) deg from the centre, got {cfg[key]!r}")
     for key in ("object_deg", "curve_gaze_deg"):  # object_deg names the figures, curve_gaze_deg the curve's points
         labels = [f"{float(x):g}" for x in cfg.get(key, [])]
@@ -449,8 +438,9 @@ def run(cfg, out: Path, progress=None):
     return rows, meta
 
 
-def _write_all(cfg, command: str, progress=None) -> Path:
-    """Check ``cfg``, run it and write every output into its ``out`` folder (made here); returns it."""
+def _write_all(cfg, command: str, progress=None) -> tuple[Path, list]:
+    """Check ``cfg``, run it and write every output into its ``out`` folder (made here); returns the folder
+    and the result rows."""
     _check_sets(cfg)  # before the folder is made (run checks again: it is also called without this)
     out = check_out_dir(repo_path(cfg["out"]))
     if out.exists() and not out.is_dir():
@@ -461,7 +451,7 @@ def _write_all(cfg, command: str, progress=None) -> Path:
     write_report(rows, meta, cfg, command, out)
     atomic_write_text(out / "results.json", json.dumps(dict(sets=meta, rows=rows), indent=1, default=float) + "\n")
     save_run_info(out, cfg, cfg["seed"], command)
-    return out
+    return out, rows
 
 
 def run_config(path, out=None, progress=None) -> Path:
@@ -472,7 +462,7 @@ def run_config(path, out=None, progress=None) -> Path:
         raise PlodError(f"points: config kind must be 'points', got {cfg['kind']!r}")
     if out is not None:
         cfg["out"] = str(out)
-    return _write_all(cfg, f"python -m experiments.points --config {path}", progress)
+    return _write_all(cfg, f"python -m experiments.points --config {path}", progress)[0]
 
 
 def main(argv=None) -> int:
@@ -487,7 +477,6 @@ def main(argv=None) -> int:
         cfg["out"] = args.out
     if args.no_judge:
         cfg["judge"] = False
-    _check_sets(cfg)
     command = "python -m experiments.points " + " ".join(argv if argv is not None else sys.argv[1:])
     from experiments._progress import rich_progress
 
@@ -498,8 +487,7 @@ def main(argv=None) -> int:
             else:
                 print(f"[points] {stage}", file=sys.stderr, flush=True)
 
-        out = _write_all(cfg, command, progress)
-    rows = json.loads((out / "results.json").read_text())["rows"]
+        _, rows = _write_all(cfg, command, progress)
     print(json.dumps([{k: r[k] for k in ("set", "object_deg")} | {"size": r["size"]["splats"],
                       "perceptual_0": r["perceptual_0"]["splats"],
                       f"perceptual_{float(cfg['gaze_deg']):g}": r[f"perceptual_{float(cfg['gaze_deg']):g}"]["splats"]}

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._runinfo import check_out_dir, load_config, repo_path, run_script, save_run_info
+from experiments._runinfo import (check_out_dir, config_numbers, load_config, repo_path, run_script,
+                                 save_run_info)
 from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, fractal_heightfield, refine_terrain)
 from pmetric import PlodError, atomic_write_text
 
@@ -43,16 +44,6 @@ def _grid_size(n) -> bool:
     return isinstance(n, int) and not isinstance(n, bool) and n >= 3 and (n - 1) & (n - 2) == 0
 
 
-def _numbers(x, n=None, lo=None, strict=False, ints=False, empty=False) -> bool:
-    """``x`` is a list (of ``n`` items when given; non-empty unless ``empty``) of finite numbers (ints when
-    ``ints``) at least ``lo`` (more than ``lo`` when ``strict``)."""
-    if not isinstance(x, (list, tuple)) or (n is not None and len(x) != n) or (not x and not empty):
-        return False
-    kinds = (int,) if ints else (int, float)
-    return all(isinstance(v, kinds) and not isinstance(v, bool) and math.isfinite(v) and
-               (lo is None or (v > lo if strict else v >= lo)) for v in x)
-
-
 def check_config(cfg: dict, who: str = "terrain") -> dict:
     """``cfg`` itself when every value the terrain experiments read is in range; PlodError naming the key
     otherwise (the loader checks only names and types)."""
@@ -61,24 +52,24 @@ def check_config(cfg: dict, who: str = "terrain") -> dict:
 
     checks = {
         "fractal_size": (_grid_size, "2^n + 1 samples (3, 5, 9, ..., 1025)"),
-        "fractal_spacing_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
-        "fractal_relief_m": (lambda x: _numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
-        "resolution": (lambda x: _numbers(x, 2, lo=1, ints=True), "two pixel counts >= 1 (across, down)"),
-        "judge_px_per_deg": (lambda x: x == 0 or _numbers([x], lo=PPD_RANGE[0]) and x <= PPD_RANGE[1],
+        "fractal_spacing_m": (lambda x: config_numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
+        "fractal_relief_m": (lambda x: config_numbers([x], lo=0, strict=True), "a finite number of metres > 0"),
+        "resolution": (lambda x: config_numbers(x, 2, lo=1, ints=True), "two pixel counts >= 1 (across, down)"),
+        "judge_px_per_deg": (lambda x: x == 0 or config_numbers([x], lo=PPD_RANGE[0]) and x <= PPD_RANGE[1],
                              f"0 (twice xi) or {PPD_RANGE[0]:g} .. {PPD_RANGE[1]:g} pixels per degree"),
-        "frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
-        "fig4_frame_step": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
-        "fig4_velocities": (lambda x: _numbers(x, lo=0), "a non-empty list of velocities >= 0 deg/s"),
-        "fig4_fovs": (lambda x: _numbers(x, lo=0, strict=True) and max(x) <= 180,
+        "frame_step": (lambda x: config_numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "fig4_frame_step": (lambda x: config_numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "fig4_velocities": (lambda x: config_numbers(x, lo=0), "a non-empty list of velocities >= 0 deg/s"),
+        "fig4_fovs": (lambda x: config_numbers(x, lo=0, strict=True) and max(x) <= 180,
                       "a non-empty list of square fields of view in (0, 180] deg"),
-        "pixel_errors": (lambda x: _numbers(x, lo=0, strict=True) and max(x) <= MAX_PX,
+        "pixel_errors": (lambda x: config_numbers(x, lo=0, strict=True) and max(x) <= MAX_PX,
                          f"a non-empty list of pixel errors in (0, {MAX_PX:g}]"),
         "scale_size": (lambda x: x == 0 or _grid_size(x), "0 (no scale test) or 2^n + 1 samples"),
-        "scale_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
-        "judge_frames": (lambda x: _numbers(x, lo=3, ints=True, empty=True), "a list of flight frames >= 3"),
-        "clip_starts": (lambda x: _numbers(x, lo=3, ints=True), "a non-empty list of flight frames >= 3"),
-        "clip_frames": (lambda x: _numbers([x], lo=1, ints=True), "an integer >= 1"),
-        "controls_px": (lambda x: _numbers(x, lo=1, empty=True) and max(x, default=1) <= MAX_PX,
+        "scale_frames": (lambda x: config_numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "judge_frames": (lambda x: config_numbers(x, lo=3, ints=True, empty=True), "a list of flight frames >= 3"),
+        "clip_starts": (lambda x: config_numbers(x, lo=3, ints=True), "a non-empty list of flight frames >= 3"),
+        "clip_frames": (lambda x: config_numbers([x], lo=1, ints=True), "an integer >= 1"),
+        "controls_px": (lambda x: config_numbers(x, lo=1, empty=True) and max(x, default=1) <= MAX_PX,
                         f"a list of pixel errors in [1, {MAX_PX:g}]"),
     }
     for key, (ok, want) in checks.items():
@@ -93,19 +84,19 @@ def check_flight(fl: dict, path) -> dict:
         raise PlodError(f"terrain flight {str(path)!r}: {key!r} must be {want}, got {fl[key]!r}")
 
     for key in ("duration_s", "fps", "yaw_period_s"):
-        if not _numbers([fl[key]], lo=0, strict=True):
+        if not config_numbers([fl[key]], lo=0, strict=True):
             bad(key, "a finite number > 0")
     n = flight_frames(fl)
     if not 4 <= n <= MAX_FRAMES:  # each refined frame takes its velocity from the three before it
         bad("duration_s", f"such that duration_s x fps (= {fl['duration_s'] * fl['fps']:g}) gives 4 .. "
             f"{MAX_FRAMES:,} frames")
     for key in ("orbit_frac", "orbit_turns", "altitude_m", "yaw_amp_deg"):
-        if not _numbers([fl[key]]):
+        if not config_numbers([fl[key]]):
             bad(key, "a finite number")
-    if not _numbers([fl["pitch_deg"]]) or abs(fl["pitch_deg"]) >= 90:
+    if not config_numbers([fl["pitch_deg"]]) or abs(fl["pitch_deg"]) >= 90:
         bad("pitch_deg", "an angle in (-90, 90) deg")
     f = fl["fov_deg"]
-    if not _numbers(f, 2, lo=0, strict=True) or f[0] > 360 or f[1] > 180:
+    if not config_numbers(f, 2, lo=0, strict=True) or f[0] > 360 or f[1] > 180:
         bad("fov_deg", "two angles in (0, 360] x (0, 180] deg")
     return fl
 
@@ -201,7 +192,7 @@ def read_pgm(path) -> np.ndarray:
     maxval is its highest elevation, 2543, came out 25.8x too tall): the maxval is read from the header
     here and the rescaling undone (exactly: Pillow rounds v / maxval * top, and round(p maxval / top)
     recovers v for maxval <= top). PlodError naming the file for anything that is not such a PGM."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     try:
         with open(path, "rb") as f:
@@ -218,9 +209,9 @@ def read_pgm(path) -> np.ndarray:
             if im.mode not in ("L", "I", "I;16", "I;16B"):
                 raise PlodError(f"terrain: {str(path)!r} is not a greyscale PGM (mode {im.mode})")
             p = np.asarray(im, dtype=np.float64)
-    except (OSError, ValueError, UnidentifiedImageError) as exc:
-        if isinstance(exc, PlodError):
-            raise
+    except PlodError:
+        raise
+    except (OSError, ValueError) as exc:  # UnidentifiedImageError is an OSError
         raise PlodError(f"terrain: cannot read the PGM {str(path)!r}: {exc}") from None
     top = 255 if maxval <= 255 else 65535
     return p if maxval == top else np.round(p * (maxval / top))

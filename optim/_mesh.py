@@ -305,9 +305,8 @@ def compact(vertices, faces, *per_vertex):
 
 def _drop_unreferenced(v, f, c):
     """Drop vertices no face uses, renumbering the faces (order of the rest kept)."""
-    n_unref = int(v.shape[0] - np.count_nonzero(np.bincount(f.ravel(), minlength=v.shape[0])))
-    v, f, c = compact(v, f, c)
-    return v, f, c, n_unref
+    v2, f, c = compact(v, f, c)
+    return v2, f, c, int(v.shape[0] - v2.shape[0])
 
 
 def _count_nonmanifold(f: np.ndarray, nv: int) -> int:

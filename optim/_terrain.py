@@ -59,9 +59,10 @@ class Heightfield:
 
     def __init__(self, heights, spacing: float = 1.0):
         try:  # an own copy: the pyramid below must describe the heights the mesh is made from
-            if np.asarray(heights).dtype.kind == "c":  # numpy would drop the imaginary part
+            raw = np.asarray(heights)
+            if raw.dtype.kind == "c":  # numpy would drop the imaginary part
                 raise ValueError
-            h = np.array(heights, dtype=np.float64)
+            h = np.array(raw, dtype=np.float64)
         except (TypeError, ValueError):
             raise PlodError("terrain: the heights must be real numbers (an (N, N) array)") from None
         if h.size == 0:

@@ -101,13 +101,3 @@ def test_short_orbit_judged(tmp_path):
     assert r["size"]["triangles"] == pytest.approx(r["perceptual"]["triangles"], rel=0.01)
     assert abs(r["meshoptimizer"]["triangles"] - r["perceptual"]["triangles"]) <= 0.05 * r["perceptual"]["triangles"]
 
-
-def test_a_run_does_not_write_over_its_own_config(tmp_path):
-    """A config named report.md in its own output folder was replaced by the report (2026-12-07)."""
-    from experiments.accuracy_motion import run_config
-
-    cfg = tmp_path / "report.md"
-    cfg.write_text('kind = "accuracy_motion"\n')
-    with pytest.raises(PlodError, match="would write its report.md over the config"):
-        run_config(cfg, out=tmp_path)
-    assert cfg.read_text() == 'kind = "accuracy_motion"\n'

@@ -20,6 +20,7 @@ import pytest
 
 from experiments import experiment as E
 from experiments import _experiment_report as R
+from pmetric import PlodError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -407,3 +408,21 @@ def test_small_config_end_to_end(tmp_path):
     for name in ("report.md", "error_vs_triangles.png", "time_vs_error.png", "wins.png", "example_best_0.png",
                  "example_worst_0.png", "run_info.json"):
         assert (tmp_path / name).stat().st_size > 0, name
+
+
+@pytest.mark.parametrize("kind, name, judged", [
+    ("terrain", "table1.md", False), ("terrain", "run_info.json", False),
+    ("terrain_motion", "motion.md", True), ("accuracy_motion", "report.md", True)])
+def test_a_run_does_not_write_over_its_own_config(tmp_path, kind, name, judged):
+    """A config named like one of its run's outputs, in its own output folder, was replaced by that
+    output (2026-12-07); the experiments whose ``run_config`` knows its config refuse before any work."""
+    import importlib
+
+    if judged:  # these check for the judge extra first
+        pytest.importorskip("pyfvvdp")
+    cfg = tmp_path / name
+    text = f'kind = "{kind}"\n' + ("fractal_size = 33\n" if kind == "terrain" else "")
+    cfg.write_text(text)
+    with pytest.raises(PlodError, match=f"would write its {name} over the config"):
+        importlib.import_module(f"experiments.{kind}").run_config(cfg, out=tmp_path)
+    assert cfg.read_text() == text

@@ -520,21 +520,6 @@ def test_terrain_config_values_are_checked_before_work(tmp_path, line, msg):
     assert "\n" not in str(err.value) and not (tmp_path / "out").exists()
 
 
-def test_a_run_does_not_write_over_its_own_config(tmp_path):
-    """A config named table1.md in the output folder was replaced by the report."""
-    from experiments.terrain import run_config
-
-    cfg = tmp_path / "table1.md"
-    cfg.write_text('kind = "terrain"\nfractal_size = 33\n')
-    with pytest.raises(PlodError, match="would write its table1.md over the config"):
-        run_config(cfg, out=tmp_path)
-    assert cfg.read_text() == 'kind = "terrain"\nfractal_size = 33\n'
-    other = tmp_path / "run_info.json"
-    other.write_text(cfg.read_text())
-    with pytest.raises(PlodError, match="would write its run_info.json over the config"):
-        run_config(other, out=tmp_path)
-
-
 def _pgm(path, magic, w, h, maxval, values):
     v = np.asarray(values)
     if magic == b"P2":
