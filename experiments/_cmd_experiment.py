@@ -94,7 +94,7 @@ def run(args) -> int:
                 print(f"[{done}/{total}] {stage}", file=sys.stderr, flush=True)
 
         rows = E.run_experiment(cfg, out=out, workers=workers, scheduler=args.scheduler, resume=args.resume,
-                                progress=progress)
+                                progress=progress, config=args.config)
     write_report(rows, cfg, out, command, examples=not args.no_examples)
     failed = [r for r in rows if r.get("error")]
     table = "results.parquet" if (out / "results.parquet").exists() else "results.csv"

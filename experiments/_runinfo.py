@@ -14,7 +14,7 @@ import subprocess
 import sys
 import tomllib
 from importlib import metadata
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Mapping
 
 from pmetric import PlodError, atomic_write_text
@@ -33,18 +33,22 @@ def repo_path(p: str | Path) -> Path:
 
 def check_out_dir(out: Path, config=None, writes=()) -> Path:
     """``out`` (an experiment's output folder), unless it is the repository root or a folder above it
-    (PlodError: a run would scatter its tables and plots among the project's files), or one of the files
-    ``writes`` (names in ``out``; ``run_info.json`` always) is the ``config`` file the run reads."""
+    (PlodError: a run would scatter its tables and plots among the project's files), or the ``config`` file
+    the run reads lies in ``out`` (or a folder below it) under a name the run writes: ``writes`` are glob
+    patterns matched from the right against its path below ``out`` (``"report.md"``, ``"*.png"``;
+    ``run_info.json`` always)."""
     r = Path(out).resolve()
     if r == ROOT.resolve() or r in ROOT.resolve().parents:
         raise PlodError(f"output folder {str(out)!r} is the repository root or above it; give a folder of its own "
                         "(e.g. reports/NAME)")
     if config is not None:
         c = Path(config).resolve()
-        for name in (*writes, "run_info.json"):
-            if (r / name).resolve() == c:
-                raise PlodError(f"output folder {str(out)!r}: the run would write its {name} over the config "
-                                f"{str(config)!r}; give another folder")
+        if c.is_relative_to(r):
+            rel = PurePosixPath(c.relative_to(r).as_posix())
+            for name in (*writes, "run_info.json"):
+                if rel.match(name):
+                    raise PlodError(f"output folder {str(out)!r}: the run would write its {name} over the config "
+                                    f"{str(config)!r}; give another folder")
     return out
 
 def config_numbers(x, n=None, lo=None, strict=False, ints=False, empty=False, below=None) -> bool:

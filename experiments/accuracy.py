@@ -40,6 +40,8 @@ from experiments._runinfo import check_out_dir, load_config, repo_path, save_run
 from experiments.experiment import baked_grey, procedural_mesh, view_directions  # noqa: F401  (shared with the runner)
 from pmetric import PlodError, atomic_write_text
 
+WRITES = ("results.jsonl", "report.md", "worst_*.png")  # what a run writes into its folder (check_out_dir)
+
 DEFAULTS = {
     "out": "reports/accuracy",
     "meshes": [
@@ -540,7 +542,7 @@ def main(argv=None) -> int:
         raise PlodError(f"accuracy config: normals must be one of {', '.join(NORMALS)}, got {cfg['normals']!r}")
     if args.out:
         cfg["out"] = args.out
-    out = check_out_dir(repo_path(cfg["out"]))
+    out = check_out_dir(repo_path(cfg["out"]), config=args.config, writes=WRITES)
     command = "python -m experiments.accuracy " + " ".join(argv if argv is not None else sys.argv[1:])
     from experiments._progress import rich_progress
 

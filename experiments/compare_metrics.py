@@ -32,16 +32,17 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (0: this process)")
     ap.add_argument("--resume", action="store_true", help="finish an interrupted run in the same folder")
     args = ap.parse_args(argv)
-    cfg = E.load_experiment_config(repo_path(args.config or CONFIG))
+    config = repo_path(args.config or CONFIG)
+    cfg = E.load_experiment_config(config)
     if args.quick:
         cfg.update(QUICK)
     if args.out:
         cfg["out"] = args.out
     cfg = E.check_config(cfg)
-    out = check_out_dir(repo_path(cfg["out"]))
+    out = check_out_dir(repo_path(cfg["out"]), config=config, writes=E.WRITES)
     command = "python -m experiments.compare_metrics " + " ".join(sys.argv[1:] if argv is None else argv)
     rows = E.run_experiment(cfg, out=out, workers=_default_workers() if args.workers is None else args.workers,
-                            resume=args.resume)
+                            resume=args.resume, config=config)
     write_report(rows, cfg, out, command)
     print(f"wrote {out / 'report.md'}", file=sys.stderr)
     return 0

@@ -71,6 +71,9 @@ from pmetric import PlodError, atomic_write_text
 __all__ = ["DEFAULTS", "COLUMNS", "load_experiment_config", "cells", "run_cell", "run_experiment",
            "view_directions", "baked_grey", "procedural_mesh", "perceptual_distance", "pareto_front"]
 
+# what a run and its report write into the output folder (check_out_dir)
+WRITES = ("results.jsonl", "experiment.json", "results.parquet", "results.csv", "report.md", "*.png")
+
 DEFAULTS: dict[str, Any] = {
     "base": "",  # a config this one overrides (relative to this file's folder); "" none
     "out": "reports/experiments/default",
@@ -669,17 +672,19 @@ def read_table(path: str | Path) -> list[dict]:
 
 
 def run_experiment(cfg: dict, *, out: str | Path | None = None, workers: int = 1, scheduler=None,
-                   resume: bool = False, progress: Callable[[str, int, int], None] | None = None) -> list[dict]:
+                   resume: bool = False, progress: Callable[[str, int, int], None] | None = None,
+                   config: str | Path | None = None) -> list[dict]:
     """Run (or, with ``resume``, finish) the sweep of the resolved config ``cfg``; returns its rows in cell
     order and writes the journal and the results table into ``out`` (default ``cfg["out"]``).
 
     ``workers``: local processes (0: this process); ``scheduler``: a Dask scheduler address (or anything
     ``dask.distributed.Client`` takes), used instead. ``progress(cell id, done, total)``: per finished cell.
-    A resumed run refuses a config whose sweep differs from the interrupted one's (PlodError).
+    A resumed run refuses a config whose sweep differs from the interrupted one's (PlodError); ``config``
+    (the file ``cfg`` was read from) must not lie in ``out`` under a name the run writes (:data:`WRITES`).
     """
     from experiments._runinfo import git_sha
 
-    out = check_out_dir(repo_path(out if out is not None else cfg["out"]))
+    out = check_out_dir(repo_path(out if out is not None else cfg["out"]), config=config, writes=WRITES)
     if not isinstance(workers, int) or workers < 0:
         raise PlodError(f"--workers must be an integer >= 0, got {workers!r}")
     if out.exists() and not out.is_dir():

@@ -39,6 +39,8 @@ from experiments._runinfo import check_out_dir, config_numbers, load_config, rep
 from experiments.accuracy import IMPERCEPTIBLE_TARGET as IMPERCEPTIBLE_JOD
 from pmetric import PlodError, atomic_write_text
 
+WRITES = ("report.md", "results.json", "*.png")  # what a run writes into its folder (check_out_dir)
+
 DEFAULTS = {
     "kind": "points",
     "out": "reports/points",
@@ -438,11 +440,11 @@ def run(cfg, out: Path, progress=None):
     return rows, meta
 
 
-def _write_all(cfg, command: str, progress=None) -> tuple[Path, list]:
-    """Check ``cfg``, run it and write every output into its ``out`` folder (made here); returns the folder
-    and the result rows."""
+def _write_all(cfg, command: str, progress=None, config=None) -> tuple[Path, list]:
+    """Check ``cfg`` (read from the file ``config``, if any), run it and write every output into its ``out``
+    folder (made here); returns the folder and the result rows."""
     _check_sets(cfg)  # before the folder is made (run checks again: it is also called without this)
-    out = check_out_dir(repo_path(cfg["out"]))
+    out = check_out_dir(repo_path(cfg["out"]), config=config, writes=WRITES)
     if out.exists() and not out.is_dir():
         raise PlodError(f"output folder {str(out)!r} is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -462,7 +464,7 @@ def run_config(path, out=None, progress=None) -> Path:
         raise PlodError(f"points: config kind must be 'points', got {cfg['kind']!r}")
     if out is not None:
         cfg["out"] = str(out)
-    return _write_all(cfg, f"python -m experiments.points --config {path}", progress)[0]
+    return _write_all(cfg, f"python -m experiments.points --config {path}", progress, config=path)[0]
 
 
 def main(argv=None) -> int:
@@ -487,7 +489,7 @@ def main(argv=None) -> int:
             else:
                 print(f"[points] {stage}", file=sys.stderr, flush=True)
 
-        _, rows = _write_all(cfg, command, progress)
+        _, rows = _write_all(cfg, command, progress, config=args.config)
     print(json.dumps([{k: r[k] for k in ("set", "object_deg")} | {"size": r["size"]["splats"],
                       "perceptual_0": r["perceptual_0"]["splats"],
                       f"perceptual_{float(cfg['gaze_deg']):g}": r[f"perceptual_{float(cfg['gaze_deg']):g}"]["splats"]}

@@ -426,3 +426,30 @@ def test_a_run_does_not_write_over_its_own_config(tmp_path, kind, name, judged):
     with pytest.raises(PlodError, match=f"would write its {name} over the config"):
         importlib.import_module(f"experiments.{kind}").run_config(cfg, out=tmp_path)
     assert cfg.read_text() == text
+
+
+@pytest.mark.parametrize("kind, name", [
+    ("points", "report.md"), ("points", "figs/counts.png"), ("experiment", "report.md"),
+    ("experiment", "wins.png"), ("experiment", "results.jsonl"), ("accuracy", "report.md"),
+    ("accuracy", "worst_perceptual_0.png"), ("compare_metrics", "results.csv")])
+def test_the_other_runs_do_not_write_over_their_own_config(tmp_path, kind, name):
+    """The same for the runs whose outputs were checked from the config dict alone (2026-12-08): the
+    points experiment, ``plod experiment`` on a sweep, ``experiments.accuracy`` and ``compare_metrics``.
+    Nothing is written: the refusal comes before any work."""
+    import importlib
+
+    from experiments import experiment as E
+
+    cfg = tmp_path / name
+    cfg.parent.mkdir(exist_ok=True)
+    text = {"points": 'kind = "points"\n', "accuracy": "views = 1\n"}.get(kind, "seed = 3\n")
+    cfg.write_text(text)
+    with pytest.raises(PlodError, match=r"would write its \S+ over the config"):
+        if kind == "points":
+            importlib.import_module("experiments.points").run_config(cfg, out=tmp_path)
+        elif kind == "experiment":
+            E.run_experiment(E.load_experiment_config(cfg), out=tmp_path, workers=0, config=cfg)
+        else:
+            importlib.import_module(f"experiments.{kind}").main(["--config", str(cfg), "--out", str(tmp_path)])
+    assert cfg.read_text() == text
+    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted({cfg.name, *cfg.relative_to(tmp_path).parts})
