@@ -30,7 +30,7 @@ CACHE_HELP = ("environment: PLOD_CACHE=DIR keeps compiled XLA programs (DIR/xla)
               "PLOD_NO_XLA_CACHE=1 turns off only the XLA cache.")
 
 # Subcommand modules, in the order they appear in ``plod --help``.
-COMMANDS = ["demo", "experiment", "fit", "calibrate", "simplify", "judge", "models"]
+COMMANDS = ["demo", "experiment", "fit", "calibrate", "simplify", "lods", "judge", "models"]
 
 
 def build_parser() -> "argparse.ArgumentParser":  # noqa: F821

@@ -5,7 +5,8 @@ Pipeline, one home per concept: mesh input and its bad-input policy (``_mesh``) 
 ``_normal_cube``, level-by-level propagation in ``_levels``) -> view (``_view``, with its lights) -> score folds
 (``_score``: classify -> terms -> key -> propagate, over the per-tree ``_context``, what a renderer shows in
 ``_relight`` and the per-node ``_terms``) -> select and extract (``_cut``; flips in ``_flips``; the normals a cut carries in ``_normals``; per-view back-face removal and the budget cut that counts
-only front-facing triangles in ``_facecull``); fitting of model
+only front-facing triangles in ``_facecull``; discrete levels of detail for any view direction, with their switch sizes, in
+``_lods``); fitting of model
 constants in ``optim.fit``. Beside the meshes: the perceptual point-hierarchy traversal of [LH01 §4] / [RL00] in
 ``_points``, and Reddy's perceptual terrain quadtree [Red01] in ``_terrain``.
 """
@@ -24,6 +25,8 @@ from ._flips import Flips, cut_flips
 from ._normals import NORMALS, cut_normals, region_normals
 from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
 from ._view import View
+from ._lods import (LevelOfDetail, direction_keys, lod_chain, max_object_deg, object_distance, screen_fraction,
+                    sphere_directions)
 from ._context import CONTEXT_NAMES, ScoringContext, load_context, save_context, scoring_context
 from ._relight import cull_columns, neighbour_normals, normal_cones, region_columns, relit_columns, slab_half_width
 from ._score import NodeTerms, node_terms, score, default_model, prepare_motion_table

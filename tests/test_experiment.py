@@ -431,7 +431,7 @@ def test_a_run_does_not_write_over_its_own_config(tmp_path, kind, name, judged):
 @pytest.mark.parametrize("kind, name", [
     ("points", "report.md"), ("points", "figs/counts.png"), ("experiment", "report.md"),
     ("experiment", "wins.png"), ("experiment", "results.jsonl"), ("accuracy", "report.md"),
-    ("accuracy", "worst_perceptual_0.png"), ("compare_metrics", "results.csv")])
+    ("accuracy", "worst_perceptual_0.png"), ("compare_metrics", "results.csv"), ("lods", "report.md")])
 def test_the_other_runs_do_not_write_over_their_own_config(tmp_path, kind, name):
     """The same for the runs whose outputs were checked from the config dict alone (2026-12-08): the
     points experiment, ``plod experiment`` on a sweep, ``experiments.accuracy`` and ``compare_metrics``.
@@ -442,7 +442,7 @@ def test_the_other_runs_do_not_write_over_their_own_config(tmp_path, kind, name)
 
     cfg = tmp_path / name
     cfg.parent.mkdir(exist_ok=True)
-    text = {"points": 'kind = "points"\n', "accuracy": "views = 1\n"}.get(kind, "seed = 3\n")
+    text = {"points": 'kind = "points"\n', "accuracy": "views = 1\n", "lods": "held_out = 1\n"}.get(kind, "seed = 3\n")
     cfg.write_text(text)
     with pytest.raises(PlodError, match=r"would write its \S+ over the config"):
         if kind == "points":
