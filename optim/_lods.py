@@ -36,6 +36,7 @@ import numpy as np
 from pmetric import PlodError
 
 from ._cut import Cut, budget_cut, threshold_cut
+from ._mesh import real_or_nan
 
 __all__ = ["LevelOfDetail", "sphere_directions", "direction_keys", "lod_chain", "screen_fraction",
            "object_distance", "max_object_deg"]
@@ -99,19 +100,9 @@ def _display(display):
     return display
 
 
-def _real(x) -> float:
-    """``x`` as a float, or NaN for what is not a real number (bools and strings included)."""
-    if isinstance(x, (bool, np.bool_, str, bytes)):
-        return math.nan
-    try:
-        return float(x)
-    except (TypeError, ValueError, OverflowError):
-        return math.nan
-
-
 def _angle(name: str, s, lo: float, hi: float, closed: bool, why: str = "") -> float:
     """``s`` as a float angle (deg) in [lo, hi] (``closed``) or [lo, hi); PlodError naming ``name``."""
-    x = _real(s)
+    x = real_or_nan(s)
     if not (lo <= x <= hi if closed else lo <= x < hi):
         raise PlodError(f"{name} must be an angle in [{lo:g}, {hi:.6g}{']' if closed else ')'} deg{why}, got {s!r}")
     return x
@@ -326,7 +317,7 @@ def object_distance(object_deg: float, radius: float) -> float:
     """The distance (object units) from the bounding sphere's centre at which a sphere of ``radius``
     subtends ``object_deg`` (deg): radius / sin(object_deg / 2)."""
     a = _angle("object_distance: object_deg", object_deg, MIN_OBJECT_DEG, 180.0, False)
-    r = _real(radius)
+    r = real_or_nan(radius)
     if not 0.0 < r < math.inf:
         raise PlodError(f"object_distance: radius must be a finite positive length, got {radius!r}")
     return r / math.sin(math.radians(a) / 2)

@@ -187,7 +187,7 @@ def real_or_nan(x) -> float:
         return math.nan
     try:
         return float(x)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float's range (10**400)
         return math.nan
 
 

@@ -143,3 +143,13 @@ def test_views_refuse_what_overflows_and_frame_from_any_direction_length():
         np.testing.assert_allclose(v.rotation, ref.rotation, atol=1e-12)
     v = View.framing(verts, direction=(0.0, 0.0, 1e-320))  # subnormal, but a direction
     np.testing.assert_allclose(v.eye / np.linalg.norm(v.eye), [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_an_integer_beyond_float_range_is_a_one_line_error():
+    """``real_or_nan`` let float()'s OverflowError through: View(gaze_error_deg=10**400) was a traceback."""
+    import optim
+
+    with pytest.raises(pmetric.PlodError, match="gaze_error_deg must be an angle"):
+        View(eye=(0, 0, 5), gaze_error_deg=10 ** 400)
+    with pytest.raises(pmetric.PlodError, match="object_distance: radius"):
+        optim.object_distance(10, 10 ** 400)
