@@ -15,7 +15,6 @@ FovVideoVDP at its switch size, and the sizes lie an order of magnitude below th
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 
@@ -151,8 +150,7 @@ def lods(args) -> dict:
     if empty and outs is not None:  # refused before any level is written
         raise PlodError(f"level {empty[0]} has no triangles (its {'budget' if sizes is None else 'size'} is below "
                         f"the smallest cut this tree makes); drop it or give a larger one")
-    centre = 0.5 * (v.min(0) + v.max(0))
-    radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
+    radius = optim.framing_sphere(v)[1]
     normals = None if args.normals == "none" else args.normals
     rows = []
     for j, lv in enumerate(levels):
@@ -170,8 +168,7 @@ def lods(args) -> dict:
     return {"mesh": str(mesh_path), "input_triangles": int(tree.n_triangles), "bounding_radius": radius,
             "directions": int(nd), "model": type(model).__name__,
             "lighting": light.to_dict() if light is not None else "baked", "tree_method": method,
-            "tree_cache": cache, "display": {"screen_deg": math.degrees(2 * math.atan(0.5 * float(display.width) /
-                                                                                       float(display.distance))),
+            "tree_cache": cache, "display": {"screen_deg": float(display.field_of_view[0]),
                                              "distance_m": float(display.distance)},
             "levels": rows, "timings_s": {"tree": round(build_s, 3), "chain": round(chain_s, 3)}}
 

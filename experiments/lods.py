@@ -113,8 +113,7 @@ def run(cfg, out: Path, progress=None) -> list[dict]:
     for name, v, f, c in _meshes(cfg):
         held = rng.normal(size=(cfg["held_out"], 3))
         held /= np.linalg.norm(held, axis=1)[:, None]
-        centre = 0.5 * (v.min(0) + v.max(0))
-        radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
+        radius = optim.framing_sphere(v)[1]
         for lighting in cfg["lightings"]:
             relit = lighting == "relit"
             colors = c if relit or c is not None else baked_grey(v, f)

@@ -24,7 +24,7 @@ from ._cut import (Cut, budget_cut, budget_cut_heap, extract, imperceptible_cut,
 from ._flips import Flips, cut_flips
 from ._normals import NORMALS, cut_normals, region_normals
 from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
-from ._view import View
+from ._view import View, framing_sphere
 from ._lods import (LevelOfDetail, direction_keys, lod_chain, max_object_deg, object_distance, screen_fraction,
                     sphere_directions)
 from ._context import CONTEXT_NAMES, ScoringContext, load_context, save_context, scoring_context

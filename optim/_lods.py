@@ -86,7 +86,7 @@ def max_object_deg(display=None) -> float:
     """The largest size (deg) a level is made for: the vertical angle ``display``'s screen subtends
     (default display: 26.9 deg). A bigger object does not fit the image: the views would cull what lies
     off the screen, and a turn of the camera brings it back."""
-    d = _display(display)
+    d = _display(display)  # in float64, as View's own field of view (Display.field_of_view is float32)
     return math.degrees(2.0 * math.atan(0.5 * float(d.height) / float(d.distance)))
 
 
@@ -159,16 +159,15 @@ def direction_keys(tree, object_deg: float, directions=64, *, model=None, displa
 
 
 def _nested(tree, unfolded: np.ndarray, keys: np.ndarray, reason: str) -> Cut:
-    """The cut of the mask ``unfolded`` (closed under ancestors), with ``keys``' largest folded key."""
-    internal = tree.internal
-    tri = int(tree.num_subtris[internal[unfolded[internal]]].sum())
-    folded = internal[~unfolded[internal]]
-    top = float(keys[folded].max()) if folded.size else 0.0
-    return Cut(unfolded, tri, max(top, 0.0), reason if folded.size else "all_unfolded")
+    """The cut of the mask ``unfolded`` (closed under ancestors); its ``distance`` is :func:`_folded_key`."""
+    kept = unfolded[tree.internal]
+    tri = int(tree.num_subtris[tree.internal[kept]].sum())
+    return Cut(unfolded, tri, _folded_key(tree, unfolded, keys), reason if not kept.all() else "all_unfolded")
 
 
-def _folded_key(tree, cut: Cut, keys: np.ndarray) -> float:
-    folded = tree.internal[~cut.unfolded[tree.internal]]
+def _folded_key(tree, unfolded: np.ndarray, keys: np.ndarray) -> float:
+    """The largest of ``keys`` over the internal nodes the mask ``unfolded`` folds (0 when none)."""
+    folded = tree.internal[~unfolded[tree.internal]]
     return max(float(keys[folded].max()), 0.0) if folded.size else 0.0
 
 
@@ -229,7 +228,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
             unf[j] = unf[j] | unf[j + 1]
         for s, k, u in zip(sizes, keys, unf):
             cut = _nested(tree, u, k, "imperceptible")
-            levels.append(LevelOfDetail(cut, s, _folded_key(tree, cut, k), capped=s >= top))
+            levels.append(LevelOfDetail(cut, s, cut.distance, capped=s >= top))
         return tuple(levels)
 
     counts = _budgets(budgets, int(tree.n_triangles))
@@ -240,7 +239,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
             masked = np.where(prev, k, -np.inf).astype(k.dtype)  # folded at the finer level: folded here
             c = budget_cut(tree, masked, T, monotone="trust")
             c = _nested(tree, c.unfolded & prev, k, "budget")
-            return c, _folded_key(tree, c, k)
+            return c, c.distance
 
         best, fail = None, math.inf  # (size, cut, key) with key <= 1, the largest; the smallest size with key > 1
         s = min(s0, top)
@@ -269,7 +268,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
         s, cut, m = best
         while True:  # certify over every direction, the cut kept
             k = keys_at(s, f"level {j + 1} ({T:,} triangles): check at {s:.3g} deg")
-            m = _folded_key(tree, cut, k)
+            m = _folded_key(tree, cut.unfolded, k)
             if m <= 1.0:
                 break
             s = s / m * 0.999
@@ -282,7 +281,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
         lv, up = levels[j], levels[j + 1].object_deg
         if up > lv.object_deg:
             k = keys_at(up, f"level {j + 1}: check at {up:.3g} deg")
-            levels[j] = LevelOfDetail(lv.cut, up, _folded_key(tree, lv.cut, k), capped=levels[j + 1].capped)
+            levels[j] = LevelOfDetail(lv.cut, up, _folded_key(tree, lv.cut.unfolded, k), capped=levels[j + 1].capped)
     return tuple(levels)
 
 
@@ -309,8 +308,8 @@ def screen_fraction(object_deg: float, display=None) -> float:
     angular diameter ``object_deg`` (deg) on ``display``'s physical camera (vertical field of view what
     the screen subtends): tan(object_deg / 2) / tan(fov / 2)."""
     d = _display(display)
-    half_fov = math.atan(0.5 * float(d.height) / float(d.distance))
-    return math.tan(math.radians(_check_size("object_deg", object_deg, d)) / 2) / math.tan(half_fov)
+    s = _check_size("object_deg", object_deg, d)
+    return math.tan(math.radians(s) / 2) / math.tan(math.radians(max_object_deg(d)) / 2)
 
 
 def object_distance(object_deg: float, radius: float) -> float:

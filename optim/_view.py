@@ -78,6 +78,17 @@ def _positive(name: str, x, *, upper: float | None = None) -> float:
     return v
 
 
+def framing_sphere(vertices, *, who: str = "framing_sphere") -> tuple[np.ndarray, float]:
+    """``(centre (3,), radius)`` of the sphere :meth:`View.framing` frames: about the bounding-box centre
+    of ``vertices`` (V, 3), through the farthest vertex (object units; 0 for coincident vertices).
+    ``who`` names the caller in the PlodError for another shape."""
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise PlodError(f"{who}: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+    centre = 0.5 * (v.min(0) + v.max(0))
+    return centre, float(np.sqrt(((v - centre) ** 2).sum(1).max()))
+
+
 class View(eqx.Module):
     """A camera, the display it is shown on, the viewer's gaze and (optionally) the previous view.
 
@@ -198,16 +209,12 @@ class View(eqx.Module):
         sphere (about the bounding-box centre) subtends ``object_deg`` degrees of the viewer's visual
         field (default 30 deg: the study of [LH01 §6.2], an object on a 46 deg screen). ``kw`` go to ``View``
         (``display``, ``gaze``, ``gaze_error_deg`` ...); the camera's field of view is the display's."""
-        v = np.asarray(vertices, dtype=np.float64)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-            raise PlodError(f"View.framing: vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+        centre, radius = framing_sphere(vertices, who="View.framing")
         deg = _positive("object_deg (deg)", object_deg, upper=180.0)
         d = _vec3("direction", direction, bounded=False)
         if not np.any(d):
             raise PlodError("View.framing: direction must be nonzero")
         du = unit_any_length(d)  # any length: a 1e-320 direction's norm underflowed ("must be nonzero")
-        centre = 0.5 * (v.min(0) + v.max(0))
-        radius = float(np.sqrt(((v - centre) ** 2).sum(1).max()))
         radius = radius if radius > 0 else 1.0
         dist = radius / math.sin(math.radians(deg) / 2)
         eye = centre + du * dist  # (a 1e308-long direction: its norm would overflow)
