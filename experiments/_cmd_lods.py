@@ -10,6 +10,10 @@ the level may be drawn, for the display of ``--screen-deg`` / ``--distance-m``; 
 height over the screen's (an engine's screen-size switch, for the display's physical camera) and as a
 distance in the mesh's units. ``reports/lods/report.md`` judges such chains: every level was invisible to
 FovVideoVDP at its switch size, and the sizes lie an order of magnitude below the one-pixel geometric rule.
+
+``--eccentricity E,E,...`` adds, per level, its switch size when the viewer's gaze lies at least E degrees
+off the object's bounding sphere (``optim.lod_sizes``: an eye-tracked or foveated renderer, with a gaze
+error of ``--gaze-error`` deg): the same level files, larger sizes off the gaze.
 """
 
 from __future__ import annotations
@@ -46,6 +50,11 @@ def register(sub) -> None:
     p.add_argument("--distance-m", metavar="M", default=None, help="viewing distance, 0.01..1000 m (default 0.63)")
     p.add_argument("--normals", metavar="region|faces|none", default="region",
                    help="vertex normals written with each level (as plod simplify)")
+    p.add_argument("--eccentricity", metavar="DEG,DEG,...", default=None,
+                   help="also give each level's switch size with the gaze at least this far off the object "
+                        "(increasing angles in (0, 90] deg, e.g. 5,10,20: for an eye-tracked renderer)")
+    p.add_argument("--gaze-error", metavar="DEG", default="1",
+                   help="the eye tracker's error with --eccentricity, deg, 0 up to 90 (default 1)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
     p.add_argument("--out", metavar="NAME.ply", default=None,
                    help="write the levels as NAME_lod1.ply, NAME_lod2.ply, ... (suffix: .ply .obj .off .stl .glb)")
@@ -92,6 +101,23 @@ def _sizes(text: str) -> list[float]:
     return out
 
 
+def _eccentricities(text: str | None) -> list[float]:
+    if text is None:
+        return []
+    out = []
+    for s in _list("--eccentricity", text):
+        try:
+            x = float(s)
+        except ValueError:
+            raise PlodError(f"--eccentricity: {s!r} is not a number") from None
+        if not 0 < x <= 90:
+            raise PlodError(f"--eccentricity: {s!r} is not an angle in (0, 90] deg (how far the gaze lies off the object)")
+        out.append(x)
+    if any(b <= a for a, b in zip(out, out[1:])):
+        raise PlodError(f"--eccentricity must increase, got {text!r}")
+    return out
+
+
 def _outputs(args, mesh_path: Path, n: int) -> list[Path] | None:
     if args.out is None:
         return None
@@ -123,6 +149,8 @@ def lods(args) -> dict:
         raise PlodError(f"--directions needs a whole number, got {args.directions!r}")
     if args.normals not in (*optim.NORMALS, "none"):
         raise PlodError(f"--normals must be region, faces or none, got {args.normals!r}")
+    eccs = _eccentricities(args.eccentricity)
+    gaze_error = _number("--gaze-error", args.gaze_error, lo=0.0, hi=90.0, strict=False)
     sizes = _sizes(args.object_deg) if args.object_deg is not None else None
     if sizes is not None:  # checked before the tree is built
         for s in sizes:
@@ -145,6 +173,8 @@ def lods(args) -> dict:
     with rich_progress("lods", enabled=not args.json) as cb:
         levels = optim.lod_chain(tree, object_deg=sizes, budgets=budgets, directions=int(nd), model=model,
                                  display=display, lighting=light, progress=cb)
+        off = {e: optim.lod_sizes(tree, levels, eccentricity_deg=e, directions=int(nd), model=model, display=display,
+                                  lighting=light, gaze_error_deg=gaze_error, progress=cb) for e in eccs}
     chain_s = time.perf_counter() - t0
     empty = [j + 1 for j, lv in enumerate(levels) if lv.triangles == 0]
     if empty and outs is not None:  # refused before any level is written
@@ -157,7 +187,11 @@ def lods(args) -> dict:
         row = {"level": j + 1, "triangles": lv.triangles, "object_deg": lv.object_deg,
                "screen_fraction": optim.screen_fraction(lv.object_deg, display),
                "distance": optim.object_distance(lv.object_deg, radius), "key": lv.key,
-               "capped": bool(lv.capped), "out": None}
+               "capped": bool(lv.capped), "out": None,
+               "off_gaze": [{"eccentricity_deg": e, "object_deg": o[j].object_deg,
+                             "screen_fraction": optim.screen_fraction(o[j].object_deg, display),
+                             "distance": optim.object_distance(o[j].object_deg, radius), "key": o[j].key,
+                             "capped": bool(o[j].capped)} for e, o in off.items()]}
         if outs is not None:
             v2, f2, c2, n2 = mesh_parts(optim.extract(tree, lv.cut, normals))
             if unit_exp:
@@ -166,7 +200,8 @@ def lods(args) -> dict:
             row["out"] = str(outs[j])
         rows.append(row)
     return {"mesh": str(mesh_path), "input_triangles": int(tree.n_triangles), "bounding_radius": radius,
-            "directions": int(nd), "model": type(model).__name__,
+            "directions": int(nd), "model": type(model).__name__, "eccentricity_deg": eccs,
+            "gaze_error_deg": gaze_error if eccs else None,
             "lighting": light.to_dict() if light is not None else "baked", "tree_method": method,
             "tree_cache": cache, "display": {"screen_deg": float(display.field_of_view[0]),
                                              "distance_m": float(display.distance)},
@@ -186,10 +221,14 @@ def run(args) -> int:
 
     table = Table(title=f"plod lods {res['mesh']} ({res['input_triangles']:,} triangles, "
                         f"{res['directions']} directions)")
-    for name in ("level", "triangles", "imperceptible at or below (deg)", "screen height", "distance", "written"):
+    names = ["level", "triangles", "imperceptible at or below (deg)", "screen height", "distance"]
+    names += [f"gaze {e:g} deg off (deg)" for e in res["eccentricity_deg"]] + ["written"]
+    for name in names:
         table.add_column(name, justify="left" if name == "written" else "right")
+    cap = lambda x, capped: f"{x:.3g}" + (" (cap)" if capped else "")  # noqa: E731
     for r in res["levels"]:
-        table.add_row(str(r["level"]), f"{r['triangles']:,}", f"{r['object_deg']:.3g}" + (" (cap)" if r["capped"] else ""),
-                      f"{r['screen_fraction']:.3g}", f"{r['distance']:.4g}", r["out"] or "")
+        table.add_row(str(r["level"]), f"{r['triangles']:,}", cap(r["object_deg"], r["capped"]),
+                      f"{r['screen_fraction']:.3g}", f"{r['distance']:.4g}",
+                      *(cap(o["object_deg"], o["capped"]) for o in r["off_gaze"]), r["out"] or "")
     Console().print(table)
     return 0

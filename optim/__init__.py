@@ -25,7 +25,7 @@ from ._flips import Flips, cut_flips
 from ._normals import NORMALS, cut_normals, region_normals
 from ._facecull import VisibleCut, drop_back_faces, facing_away, visible_budget_cut
 from ._view import View, framing_sphere
-from ._lods import (LevelOfDetail, direction_keys, lod_chain, max_object_deg, object_distance, screen_fraction,
+from ._lods import (LevelOfDetail, direction_keys, lod_chain, lod_sizes, max_object_deg, object_distance, screen_fraction,
                     sphere_directions)
 from ._context import CONTEXT_NAMES, ScoringContext, load_context, save_context, scoring_context
 from ._relight import cull_columns, neighbour_normals, normal_cones, region_columns, relit_columns, slab_half_width

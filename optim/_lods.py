@@ -20,6 +20,14 @@ Stages, each a function below:
    direction, found by a fixed-point iteration: a key is a multiple of the viewing distance, so at a
    smaller angular size it shrinks nearly in proportion).
 
+4. :func:`lod_sizes`: the switch sizes of given levels (the cuts kept) when the viewer's gaze is known to
+   lie at least some degrees off the object (an eye-tracked or foveated renderer): every view of stages 2
+   and 3 then puts the gaze anywhere on the circle ``eccentricity_deg`` beyond the bounding sphere's
+   outline (``View.gaze_ring_deg``), so each node's eccentricity is its smallest over that circle, less
+   the gaze error [LHNW00 §4.4]. Sensitivity falls with eccentricity, so the circle is the worst case of
+   every gaze at least that far off. ``eccentricity_deg = 0`` (the default everywhere) is the case
+   without gaze information: the viewer may look at any part of the object.
+
 Units: sizes are the angular diameter of the object's bounding sphere (about its bounding-box centre)
 in degrees of the viewer's visual field; the camera is the display's physical one (the image spans
 what the screen subtends), so a size is also a screen-height fraction for that display
@@ -38,12 +46,13 @@ from pmetric import PlodError
 from ._cut import Cut, budget_cut, threshold_cut
 from ._mesh import real_or_nan
 
-__all__ = ["LevelOfDetail", "sphere_directions", "direction_keys", "lod_chain", "screen_fraction",
+__all__ = ["LevelOfDetail", "sphere_directions", "direction_keys", "lod_chain", "lod_sizes", "screen_fraction",
            "object_distance", "max_object_deg"]
 
 DIRECTIONS = 512  # view directions a level is checked over (the certificate)
 SEARCH_DIRECTIONS = 64  # and the ones its budget level's size is searched over
 MIN_OBJECT_DEG = 1e-6  # the smallest size a level is made for (deg: 3.6 milliarcseconds)
+MAX_ECCENTRICITY_DEG = 90.0  # the gaze at most this far off the object (deg): the gaze circle stays in front
 _TIGHT = 0.97  # a budget level's size is accepted once its largest folded key lies in [_TIGHT, 1]
 _ITERATIONS = 8
 
@@ -134,28 +143,42 @@ def _directions(directions, name: str = "directions") -> np.ndarray:
 
 
 def direction_keys(tree, object_deg: float, directions=64, *, model=None, display=None, lighting=None,
+                   eccentricity_deg: float = 0.0, gaze_error_deg: float = 1.0,
                    progress: Callable[[int, int], None] | None = None) -> np.ndarray:
     """(N,) float32: per node of ``tree``, the largest perceptual key of :func:`optim.score` over the
     views framing the object at ``object_deg`` (deg, its bounding sphere's angular diameter) from each
     of ``directions`` (a count for :func:`sphere_directions`, or a (D, 3) array of directions from the
-    object's centre to the eye), with no gaze information (every node foveal). ``display``
-    (:class:`pmetric.Display`, default the default display), ``lighting`` (:class:`optim.Lighting`,
-    default pre-lit) and ``model`` (default :func:`optim.default_model`) as for a :class:`optim.View`
-    and :func:`optim.score`. Keys are multiples of the viewing distance: <= 1 is imperceptible from
-    every one of the directions at this size [LH01 §5.3]. ``progress(done, total)`` per direction."""
+    object's centre to the eye). ``display`` (:class:`pmetric.Display`, default the default display),
+    ``lighting`` (:class:`optim.Lighting`, default pre-lit) and ``model`` (default
+    :func:`optim.default_model`) as for a :class:`optim.View` and :func:`optim.score`. Keys are multiples
+    of the viewing distance: <= 1 is imperceptible from every one of the directions at this size
+    [LH01 §5.3]. ``progress(done, total)`` per direction.
+
+    ``eccentricity_deg`` (deg, 0 .. 90): 0 (default) is no gaze information, every node foveal; above 0
+    the gaze lies that far beyond the bounding sphere's outline, anywhere around it (a gaze ring of
+    radius ``eccentricity_deg + object_deg / 2`` about the object's centre), less ``gaze_error_deg``
+    (deg, default 1: an eye tracker [LHNW00 §4.4])."""
     from ._score import score
     from ._view import View
 
     s = _check_size("object_deg", object_deg, display)
+    e = _eccentricity(eccentricity_deg)
     dirs = _directions(directions)
+    gaze = dict(gaze=None) if e == 0 else dict(gaze="center", gaze_ring_deg=e + 0.5 * s)
+    gaze["gaze_error_deg"] = gaze_error_deg  # (checked by View either way)
     out = None
     for i, u in enumerate(dirs):
-        view = View.framing(tree.vertices, s, direction=u, display=display, gaze=None, lighting=lighting)
+        view = View.framing(tree.vertices, s, direction=u, display=display, lighting=lighting, **gaze)
         k = score(tree, view, model, "perceptual")
         out = k if out is None else np.maximum(out, k)
         if progress is not None:
             progress(i + 1, len(dirs))
     return out
+
+
+def _eccentricity(e) -> float:
+    return _angle("eccentricity_deg", e, 0.0, MAX_ECCENTRICITY_DEG, True,
+                  " (how far the gaze lies off the object's bounding sphere)")
 
 
 def _nested(tree, unfolded: np.ndarray, keys: np.ndarray, reason: str) -> Cut:
@@ -172,7 +195,7 @@ def _folded_key(tree, unfolded: np.ndarray, keys: np.ndarray) -> float:
 
 
 def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, search_directions=SEARCH_DIRECTIONS,
-              model=None, display=None, lighting=None,
+              model=None, display=None, lighting=None, eccentricity_deg: float = 0.0, gaze_error_deg: float = 1.0,
               progress: Callable[[str, int, int], None] | None = None) -> tuple[LevelOfDetail, ...]:
     """The levels of detail of ``tree``, finest first, nested (each level folds every node the level
     before it folds), each imperceptible from every one of ``directions`` up to its ``object_deg``.
@@ -192,27 +215,18 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
       the level before it folds, so it is imperceptible wherever a coarser one is: a level's size is at
       least every coarser level's.
 
-    ``directions`` (default 512), ``model``, ``display`` and ``lighting`` as for :func:`direction_keys`.
-    The directions sample the views; a fold visible only between them is missed: on the horse at 10 deg,
-    32 directions left 421 folded nodes visible from one of 64 random other directions (keys up to 10.9),
-    128 left 8 (up to 1.5), 512 none. Cost: one :func:`optim.score` per direction per size tried.
-    ``progress(stage, done, total)`` per direction.
+    ``directions`` (default 512), ``model``, ``display``, ``lighting``, ``eccentricity_deg`` (default 0:
+    no gaze information) and ``gaze_error_deg`` as for :func:`direction_keys`. The directions sample the
+    views; a fold visible only between them is missed: on the horse at 10 deg, 32 directions left 421
+    folded nodes visible from one of 64 random other directions (keys up to 10.9), 128 left 8 (up to 1.5),
+    512 none. Cost: one :func:`optim.score` per direction per size tried. ``progress(stage, done, total)``
+    per direction. :func:`lod_sizes` gives the same levels' sizes at other eccentricities.
     """
     if (object_deg is None) == (budgets is None):
         raise PlodError("lod_chain: give exactly one of object_deg (sizes) and budgets (triangle counts)")
-    dirs = _directions(directions)
-    if isinstance(search_directions, (bool, np.bool_)) or not isinstance(search_directions, (int, np.integer)):
-        raise PlodError(f"lod_chain: search_directions must be a count in 1..100000, got {search_directions!r}")
-    search = dirs if len(dirs) <= search_directions else _directions(search_directions, "search_directions")
-    if progress is not None and not callable(progress):
-        raise PlodError(f"lod_chain: progress must be a callable (stage, done, total) or None, got "
-                        f"{type(progress).__name__}")
-    top = max_object_deg(display)  # (checks the display)
+    keys_at, dirs, search, top = _key_source(tree, directions, search_directions, model, display, lighting,
+                                             eccentricity_deg, gaze_error_deg, progress, "lod_chain")
     prev = np.ones(tree.n_nodes, dtype=bool)  # the finer level's unfolded mask (the input: all)
-
-    def keys_at(s, stage, over=dirs):
-        cb = None if progress is None else (lambda d, n: progress(stage, d, n))
-        return direction_keys(tree, s, over, model=model, display=display, lighting=lighting, progress=cb)
 
     levels = []
     if object_deg is not None:
@@ -234,49 +248,125 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
     counts = _budgets(budgets, int(tree.n_triangles))
     s0 = 0.5 * top
     for j, T in enumerate(counts):
+        label = f"level {j + 1} ({T:,} triangles)"
+
         def at(s):  # the level's cut with the keys at size s, and its largest folded key there
-            k = keys_at(s, f"level {j + 1} ({T:,} triangles): search at {s:.3g} deg", search)
+            k = keys_at(s, f"{label}: search at {s:.3g} deg", search)
             masked = np.where(prev, k, -np.inf).astype(k.dtype)  # folded at the finer level: folded here
             c = budget_cut(tree, masked, T, monotone="trust")
             c = _nested(tree, c.unfolded & prev, k, "budget")
             return c, c.distance
 
-        best, fail = None, math.inf  # (size, cut, key) with key <= 1, the largest; the smallest size with key > 1
-        s = min(s0, top)
-        for _ in range(_ITERATIONS):
-            cut, m = at(s)
-            if m <= 1.0:
-                if best is None or s > best[0]:
-                    best = (s, cut, m)
-                if m >= _TIGHT or s >= top:
-                    break
-            else:
-                fail = min(fail, s)
-            nxt = top if m <= 0.0 else min(s / m, top)  # keys scale about as the size
-            if best is not None and not best[0] < nxt < fail:  # the scaling overshot: bisect (in log size)
-                if fail / best[0] < 1.01:
-                    break
-                nxt = math.sqrt(best[0] * min(fail, top))
-            s = nxt
-        while best is None:  # no size tried was imperceptible: shrink the smallest until one is
-            s = s / max(m, 1.0) * 0.97
-            if s < MIN_OBJECT_DEG:
-                raise PlodError(f"lod_chain: no size at which the {T:,}-triangle level is imperceptible")
-            cut, m = at(s)
-            if m <= 1.0:
-                best = (s, cut, m)
-        s, cut, m = best
-        while True:  # certify over every direction, the cut kept
-            k = keys_at(s, f"level {j + 1} ({T:,} triangles): check at {s:.3g} deg")
-            m = _folded_key(tree, cut.unfolded, k)
-            if m <= 1.0:
-                break
-            s = s / m * 0.999
-        levels.append(LevelOfDetail(cut, float(s), m, capped=s >= top))
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label)
+        levels.append(LevelOfDetail(cut, s, m, capped=s >= top))
         prev = cut.unfolded
         s0 = s
-    # a level imperceptible at some size makes every finer one so there too (it folds a subset): a finer
-    # level whose search ended below a coarser level's size takes that size (its key recomputed)
+    return _monotone_sizes(tree, levels, keys_at)
+
+
+def lod_sizes(tree, levels, *, eccentricity_deg: float, directions=DIRECTIONS, search_directions=SEARCH_DIRECTIONS,
+              model=None, display=None, lighting=None, gaze_error_deg: float = 1.0,
+              progress: Callable[[str, int, int], None] | None = None) -> tuple[LevelOfDetail, ...]:
+    """The levels of :func:`lod_chain` (the same cuts, finest first) with the switch sizes they have when
+    the gaze lies at least ``eccentricity_deg`` (deg, 0 .. 90) off the object's bounding sphere: each
+    level's largest size (deg) at which every fold it makes is imperceptible from every one of
+    ``directions`` with the gaze anywhere on the circle that far beyond the sphere's outline (see
+    :func:`direction_keys`), found as :func:`lod_chain` finds a budget level's size (searched over
+    ``search_directions`` from the level's own size, certified over all ``directions``), then made
+    monotone (a finer level is imperceptible wherever a coarser one is). ``model``, ``display``,
+    ``lighting`` should be the chain's. An engine that knows the angle between the gaze and the object's
+    bounding sphere uses a level up to the size given for the largest eccentricity at or below that
+    angle. ``eccentricity_deg = 0`` recomputes the chain's own sizes (without gaze information).
+    """
+    keys_at, dirs, search, top = _key_source(tree, directions, search_directions, model, display, lighting,
+                                             eccentricity_deg, gaze_error_deg, progress, "lod_sizes")
+    if isinstance(levels, LevelOfDetail) or not isinstance(levels, (list, tuple)) or not levels \
+            or not all(isinstance(lv, LevelOfDetail) for lv in levels):
+        raise PlodError("lod_sizes: levels must be a non-empty sequence of LevelOfDetail (lod_chain's result)")
+    for lv in levels:
+        if np.shape(lv.cut.unfolded) != (tree.n_nodes,):
+            raise PlodError(f"lod_sizes: a level's cut has {np.size(lv.cut.unfolded)} nodes, the tree "
+                            f"{tree.n_nodes:,}: levels must come from this tree's chain")
+    out = []
+    for j, lv in enumerate(levels):
+        label = f"level {j + 1} ({lv.triangles:,} triangles) at {eccentricity_deg:g} deg off"
+
+        def at(s, lv=lv, label=label):
+            k = keys_at(s, f"{label}: search at {s:.3g} deg", search)
+            return lv.cut, _folded_key(tree, lv.cut.unfolded, k)
+
+        s0 = min(max(lv.object_deg, MIN_OBJECT_DEG), top)
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label)
+        out.append(LevelOfDetail(lv.cut, s, m, capped=s >= top))
+    return _monotone_sizes(tree, out, keys_at)
+
+
+def _key_source(tree, directions, search_directions, model, display, lighting, eccentricity_deg, gaze_error_deg,
+                progress, who):
+    """(keys_at(size, stage, over=all directions), the directions, the search directions, the top size),
+    the arguments checked."""
+    dirs = _directions(directions)
+    if isinstance(search_directions, (bool, np.bool_)) or not isinstance(search_directions, (int, np.integer)):
+        raise PlodError(f"{who}: search_directions must be a count in 1..100000, got {search_directions!r}")
+    search = dirs if len(dirs) <= search_directions else _directions(search_directions, "search_directions")
+    if progress is not None and not callable(progress):
+        raise PlodError(f"{who}: progress must be a callable (stage, done, total) or None, got "
+                        f"{type(progress).__name__}")
+    top = max_object_deg(display)  # (checks the display)
+    e = _eccentricity(eccentricity_deg)
+    ge = real_or_nan(gaze_error_deg)
+    if not 0 <= ge <= 180:
+        raise PlodError(f"{who}: gaze_error_deg must be an angle in [0, 180] deg, got {gaze_error_deg!r}")
+
+    def keys_at(s, stage, over=dirs):
+        cb = None if progress is None else (lambda d, n: progress(stage, d, n))
+        return direction_keys(tree, s, over, model=model, display=display, lighting=lighting, eccentricity_deg=e,
+                              gaze_error_deg=ge, progress=cb)
+
+    return keys_at, dirs, search, top
+
+
+def _largest_size(tree, at, keys_at, s0: float, top: float, label: str) -> tuple[float, Cut, float]:
+    """(size, cut, its largest folded key <= 1): the search of :func:`lod_chain`'s budget levels, ``at(s)``
+    giving (cut, largest folded key over the search directions) at size s, then the certificate over
+    every direction (``keys_at``) with the cut kept."""
+    best, fail = None, math.inf  # (size, cut, key) with key <= 1, the largest; the smallest size with key > 1
+    s = min(s0, top)
+    for _ in range(_ITERATIONS):
+        cut, m = at(s)
+        if m <= 1.0:
+            if best is None or s > best[0]:
+                best = (s, cut, m)
+            if m >= _TIGHT or s >= top:
+                break
+        else:
+            fail = min(fail, s)
+        nxt = top if m <= 0.0 else min(s / m, top)  # keys scale about as the size
+        if best is not None and not best[0] < nxt < fail:  # the scaling overshot: bisect (in log size)
+            if fail / best[0] < 1.01:
+                break
+            nxt = math.sqrt(best[0] * min(fail, top))
+        s = nxt
+    while best is None:  # no size tried was imperceptible: shrink the smallest until one is
+        s = s / max(m, 1.0) * 0.97
+        if s < MIN_OBJECT_DEG:
+            raise PlodError(f"lod_chain: no size at which the {label} is imperceptible")
+        cut, m = at(s)
+        if m <= 1.0:
+            best = (s, cut, m)
+    s, cut, m = best
+    while True:  # certify over every direction, the cut kept
+        k = keys_at(s, f"{label}: check at {s:.3g} deg")
+        m = _folded_key(tree, cut.unfolded, k)
+        if m <= 1.0:
+            break
+        s = s / m * 0.999
+    return float(s), cut, m
+
+
+def _monotone_sizes(tree, levels: list, keys_at) -> tuple[LevelOfDetail, ...]:
+    """A level imperceptible at some size makes every finer one so there too (it folds a subset): a finer
+    level whose search ended below a coarser level's size takes that size (its key recomputed)."""
     for j in range(len(levels) - 2, -1, -1):
         lv, up = levels[j], levels[j + 1].object_deg
         if up > lv.object_deg:

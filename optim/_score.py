@@ -138,7 +138,7 @@ def _motion_table(model) -> np.ndarray:
 class _KeyTable(NamedTuple):
     device: jax.Array
     host: np.ndarray
-    band: tuple  # (M, f*): max over f of f S(f, 0) (cycles/deg) and where it is (cycles/deg)
+    band: "BandBound"  # band_bound: the thin-band key's constants, with their bounds off the gaze
 
 
 #: Retinal velocities (deg/s) over which :func:`band_constant` bounds a moving band: 0 and a log grid
@@ -167,6 +167,107 @@ def band_constant(model, motion: bool = False) -> tuple:
     return best * 1.01, f_star
 
 
+#: Eccentricity grid (deg) of :func:`band_constants`: 0, then 0.1 to 100 deg at 16 points per decade.
+BAND_ECCENTRICITIES = np.concatenate([[0.0], np.logspace(-1.0, 2.0, 49)])
+#: Scales a (deg) of the envelopes ``b / (1 + e / a)`` of :func:`band_bound` (with the foveal bound b = 1,
+#: a = inf): the band key's closed forms.
+BAND_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
+
+
+class BandBound(NamedTuple):
+    """What the thin-band key needs of a model (float32 arrays): ``m0`` the band constant ``M = max_f
+    f S(f, 0)`` (:func:`band_constant`), ``f_star`` where it is, and the envelopes of :func:`band_bound`:
+    ``M(e) <= m0 b_i / (1 + e inv_a_i)`` for e in [0, 100] deg, ``M(e) <= m0 tail`` beyond."""
+    m0: np.ndarray
+    f_star: np.ndarray
+    b: np.ndarray  # (P,)
+    inv_a: np.ndarray  # (P,) 1 / deg
+    tail: np.ndarray
+
+
+@eqx.filter_jit
+def _grid_sensitivity(model, f, e, v):
+    """S(f, e, v) on the grid (E, F) of eccentricities ``e`` (E,) and frequencies ``f`` (F,): one program
+    per model type (the model's constants traced), not one per model."""
+    return model.sensitivity(f[None, :], e[:, None], v)
+
+
+def band_constants(model, motion: bool = False) -> tuple:
+    """``(M_e, f*)``: ``M_e`` (E,) float64 the band constant of :func:`band_constant` per eccentricity
+    cell of :data:`BAND_ECCENTRICITIES`: ``M_e[0]`` is ``band_constant``'s ``M`` (eccentricity 0), and
+    ``M_e[i]`` the largest of ``max_f f S(f, e_j)`` over the grid points ``e_j >= e_i`` (rounded up by
+    1 %, at most ``M_e[0]``), so ``M_e`` never increases and bounds every eccentricity from ``e_i`` on,
+    given a sensitivity that falls with eccentricity between grid points and beyond the last (every model
+    here: ``tests/test_score.py`` checks it at random eccentricities); ``f*`` as ``band_constant``'s. With
+    ``motion``, also the largest over the retinal velocities."""
+    m0, f_star = band_constant(model, motion)
+    f = jnp.asarray(np.logspace(-2.0, 2.5, 2049), jnp.float32)
+    e = jnp.asarray(BAND_ECCENTRICITIES[1:], jnp.float32)
+    vs = _BAND_VELOCITIES if motion else np.zeros(1)
+    per = np.zeros(len(BAND_ECCENTRICITIES) - 1)
+    for v in vs:
+        sens = np.asarray(_grid_sensitivity(model, f, e, jnp.float32(v)), np.float64)
+        fs = np.where(np.isfinite(sens), np.asarray(f, np.float64)[None, :] * sens, 0.0)
+        per = np.maximum(per, fs.max(axis=1))
+    suffix = np.maximum.accumulate(per[::-1])[::-1] * 1.01
+    return np.concatenate([[m0], np.minimum(suffix, m0)]), f_star
+
+
+def band_bound(model, motion: bool = False) -> BandBound:
+    """The :class:`BandBound` of ``model``: for each scale a of :data:`BAND_SCALES` the least ``b >= 1``
+    with ``M(e) <= M0 b / (1 + e / a)`` on every cell ``[e_j, e_j+1)`` of :func:`band_constants`' grid (M
+    there at most ``M_e[j]``, ``1 + e / a`` at most its value at ``e_j+1``), b rounded up and 1 / a down to
+    float32; ``tail = M_e[-1] / M0`` bounds ``M(e) / M0`` from 100 deg on. A model whose M is 0 gets the
+    foveal bound alone."""
+    m_e, f_star = band_constants(model, motion)
+    m0 = float(m_e[0])
+    r = m_e / m0 if m0 > 0 else np.ones_like(m_e)
+    g = BAND_ECCENTRICITIES
+    bs = [max(1.0, float(np.max(r[:-1] * (1.0 + g[1:] / a)))) for a in BAND_SCALES]
+    f32 = np.float32
+    up = lambda x: np.nextafter(f32(x), f32(np.inf)) if float(f32(x)) < x else f32(x)  # noqa: E731
+    down = lambda x: np.nextafter(f32(x), f32(0)) if float(f32(x)) > x else f32(x)  # noqa: E731
+    return BandBound(f32(m0), f32(f_star), np.array([f32(1.0)] + [up(x) for x in bs], f32),
+                     np.array([f32(0.0)] + [down(1.0 / a) for a in BAND_SCALES], f32), up(float(r[-1])))
+
+
+#: the band bound of the pixel metrics (unused by them)
+_NO_BAND = BandBound(np.float32(0), np.float32(0), np.zeros(len(BAND_SCALES) + 1, np.float32),
+                     np.zeros(len(BAND_SCALES) + 1, np.float32), np.float32(0))
+
+
+_DEVICE_BANDS: dict = {}
+
+
+def _device_band(bb: BandBound) -> BandBound:
+    """``bb`` on the device, once per bound (the bounds live in the per-model caches; five transfers cost
+    about a millisecond, per view otherwise)."""
+    hit = _DEVICE_BANDS.get(id(bb))
+    if hit is None or hit[0] is not bb:
+        if len(_DEVICE_BANDS) > 64:
+            _DEVICE_BANDS.clear()
+        hit = _DEVICE_BANDS[id(bb)] = (bb, BandBound(*jax.device_put(tuple(np.asarray(x, np.float32) for x in bb))))
+    return hit[1]
+
+
+def band_key(kc, ecc, bb: BandBound, xp=jnp):
+    """The largest distance multiple ``k`` at which a thin band with ``kc = 2 c w`` (:func:`thin_band_key`)
+    is perceptible to some channel, bounded with the band's eccentricity ``ecc`` (deg, at the current
+    distance; None: no gaze). At ``k`` times the distance the band lies at ``ecc / k``, so ``k <= kc
+    M(ecc / k)`` with ``M(e) = max_f f S(f, e)``. Where ``ecc / k <= 100`` deg each envelope ``M(x) <= M0 b
+    / (1 + x / a)`` of :func:`band_bound` gives ``k (1 + ecc / (a k)) <= b kc M0``, i.e. ``k <= b K0 - ecc /
+    a`` with ``K0 = kc M0`` (the bound at eccentricity 0); beyond, ``k <= K0 tail``. So ``k <= max(min_i (b_i
+    K0 - ecc / a_i), K0 tail)``, at most K0 (the foveal envelope b = 1, 1 / a = 0) and exactly K0 without
+    gaze or at eccentricity 0. Eight products and differences per node, no iteration and no gather."""
+    k0 = kc * bb.m0
+    if ecc is None:
+        return k0
+    k = k0
+    for i in range(1, len(BAND_SCALES) + 1):
+        k = xp.minimum(k, bb.b[i] * k0 - ecc * bb.inv_a[i])
+    return xp.maximum(k, k0 * bb.tail)
+
+
 def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
     """The key of a silhouette fold whose outline moves within a band of width ``w`` <= ``theta`` (deg).
 
@@ -176,8 +277,9 @@ def thin_band_key(k_own, k_cap, k_a, k_b, kc, k_edge, silhouette, xp=jnp):
     imperceptible beyond the largest of those channels' distances, ``max_s k(c w / s, s, e)``. At
     distance ``k`` the channel of half-period ``s`` has frequency ``f = k / (2 s)`` and sees
     ``c (2 w f / k) S(f)``, so an interior maximum is at ``f* = argmax f S(f)`` with value
-    ``kc = 2 c w M`` (:func:`band_constant`; at eccentricity 0, where S is largest, so an upper
-    bound), and it lies in the interval only if ``kc <= k_edge = 2 theta f*`` (with eccentricity the
+    ``kc = 2 c w M`` (:func:`band_constant`, at eccentricity 0, where S is largest; off the gaze the
+    tighter :func:`band_key`, which callers pass as ``kc``), and it lies in the interval only if
+    ``kc <= k_edge = 2 theta f*`` (with eccentricity the
     peak moves to lower frequencies, so ``k_edge`` still bounds it); otherwise the maximum is at an
     end, ``k_a = k(c w / theta, theta, e)`` or ``k_b = k(c, w, e)``. Every channel's key is at most
     the whole-node key ``k_cap = k(c, theta, e)`` (smaller and fainter). So the silhouette key is
@@ -343,9 +445,9 @@ def _motion_table_for(model):
 
 
 def _model_band(model, motion: bool = False) -> tuple:
-    """:func:`band_constant` of ``model`` (with ``motion``, over retinal velocities too), cached like the
+    """:func:`band_bound` of ``model`` (with ``motion``, over retinal velocities too), cached like the
     key tables."""
-    return _per_model(_BANDS_MOTION if motion else _BANDS, model, lambda m: band_constant(m, motion))
+    return _per_model(_BANDS_MOTION if motion else _BANDS, model, lambda m: band_bound(m, motion))
 
 
 def _ratio_cell(x, theta, grid):
@@ -401,7 +503,8 @@ def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
             vel = t.vel if has_motion else None
             idx = lambda c, th: table_index(c, th, t.ecc, vel)  # noqa: E731
             return t.culled, (idx(t.c_own, t.theta), idx(t.contrast, t.theta), idx(c_a, t.theta),
-                              idx(t.contrast, t.band), t.theta, t.band, kc, t.silhouette)
+                              idx(t.contrast, t.band), t.theta, t.band, kc, t.silhouette,
+                              t.ecc if has_gaze else None)
         return t.culled, (t.c_own, t.contrast, t.theta, t.band, t.silhouette, t.ecc if has_gaze else None,
                           t.vel if has_motion else None)
     return t.culled, (t.size_px if metric == "size" else t.err_px,)
@@ -411,7 +514,7 @@ def _key_inputs(ch, vp, facing, metric, has_gaze, has_motion, table_mode=False):
 def _exact_key(model, inputs, metric, has_gaze, has_motion, band_m):
     """``key`` without the key table (``exact=True``, motion, pixel metrics): raw key (C,) float32 >= 0.
     A separate XLA program: fused with ``terms``, XLA:CPU recomputes shared intermediates. ``band_m``:
-    :func:`band_constant` (with motion, its bound over velocities too)."""
+    :func:`band_bound` (with motion, its bound over velocities too)."""
     if metric == "perceptual":
         c_own, c_sil, theta, band, sil, ecc, vel = inputs
         e = ecc if has_gaze else 0.0
@@ -420,19 +523,19 @@ def _exact_key(model, inputs, metric, has_gaze, has_motion, band_m):
         dist = lambda c, th: clean(model.imperceptible_distance(c, th, e, v))  # noqa: E731
         k_own, k_cap = dist(c_own, theta), dist(c_sil, theta)
         c_a, kc = _thin_parts(c_sil, theta, band)
-        key = thin_band_key(k_own, k_cap, dist(c_a, theta), dist(c_sil, band), kc * band_m[0],
-                            2.0 * theta * band_m[1], sil)
+        key = thin_band_key(k_own, k_cap, dist(c_a, theta), dist(c_sil, band), band_key(kc, ecc, band_m),
+                            2.0 * theta * band_m.f_star, sil)
     else:
         key = inputs[0]
     return jnp.maximum(key, 0.0).astype(jnp.float32)
 
 
 @jax.jit
-def _table_keys_device(ktab, band_m, i_own, i_sil, i_a, i_b, theta, band, kc, sil):
-    """Table mode in XLA: the same keys as :func:`_table_keys_host`."""
+def _table_keys_device(ktab, band_m, i_own, i_sil, i_a, i_b, theta, band, kc, sil, ecc):
+    """Table mode in XLA: the same keys as :func:`_table_keys_host` (``ecc`` None without gaze)."""
     g = lambda i, th: table_gather(ktab, i, th)  # noqa: E731
-    return thin_band_key(g(i_own, theta), g(i_sil, theta), g(i_a, theta), g(i_b, band), kc * band_m[0],
-                         2.0 * theta * band_m[1], sil)
+    return thin_band_key(g(i_own, theta), g(i_sil, theta), g(i_a, theta), g(i_b, band), band_key(kc, ecc, band_m),
+                         2.0 * theta * band_m.f_star, sil)
 
 
 @functools.partial(jax.jit, static_argnames=("has_gaze",))
@@ -454,22 +557,24 @@ def _table_inputs(ch, vp, has_gaze):
             cone_front & cone_back)
 
 
-@jax.jit
-def _silhouette_indices_xla(c_sil, ecc, theta, band):
+@functools.partial(jax.jit, static_argnames=("has_gaze",))
+def _silhouette_indices_xla(c_sil, ecc, theta, band, bb, has_gaze):
     c_a, kc = _thin_parts(c_sil, theta, band)
-    return (table_index(c_sil, theta, ecc), table_index(c_a, theta, ecc), table_index(c_sil, band, ecc), kc)
+    return (table_index(c_sil, theta, ecc), table_index(c_a, theta, ecc), table_index(c_sil, band, ecc),
+            band_key(kc, ecc if has_gaze else None, bb))
 
 
-def _silhouette_indices(c_sil, ecc, theta, band):
-    """Key-table indices of the silhouette, widest-channel and band contrasts and ``2 c w`` (the
-    thin-band parts, :func:`thin_band_key`) of some nodes, numpy (S,) in and out; the XLA arithmetic of
-    :func:`table_index` (bit-identical to the XLA path), padded to a power of two >= 1024 nodes so that
-    few lengths compile."""
+def _silhouette_indices(c_sil, ecc, theta, band, bb, has_gaze):
+    """Key-table indices of the silhouette, widest-channel and band contrasts and the band key
+    (:func:`band_key` of ``2 c w`` with the :class:`BandBound` ``bb``; the thin-band parts,
+    :func:`thin_band_key`) of some nodes, numpy (S,) in and out; the XLA arithmetic of
+    :func:`table_index` and :func:`band_key` (bit-identical to the XLA path), padded to a power of two
+    >= 1024 nodes so that few lengths compile."""
     n = c_sil.shape[0]
     cols = np.zeros((4, max(1024, 1 << (n - 1).bit_length())), np.float32)  # padding: contrast 0 -> index -1
     for row, x in zip(cols, (c_sil, ecc, theta, band)):
         row[:n] = x
-    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(*cols))
+    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(*cols, _device_band(bb), has_gaze))
 
 
 def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
@@ -498,10 +603,10 @@ def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
     s = np.concatenate(sil_pos)
     if s.size:
         c_sil, ecc, th, bd = (np.concatenate(c) for c in zip(*sil_cols))
-        i_sil, i_a, i_b, kc = _silhouette_indices(c_sil, ecc, th, bd)
-        m_band, f_star = (np.float32(x) for x in ktab.band)
+        i_sil, i_a, i_b, kb = _silhouette_indices(c_sil, ecc, th, bd, ktab.band, has_gaze)
+        f_star = np.float32(ktab.band.f_star)
         key[s] = thin_band_key(key[s], table_gather(tab, i_sil, th, np), table_gather(tab, i_a, th, np),
-                               table_gather(tab, i_b, bd, np), kc * m_band, np.float32(2.0) * th * f_star, True, np)
+                               table_gather(tab, i_b, bd, np), kb, np.float32(2.0) * th * f_star, True, np)
     return key, culled
 
 
@@ -532,10 +637,10 @@ def _raw_keys(ctx, vp, model, ktab, metric, has_gaze, has_motion, fast=None):
     if table_mode and fast and not has_motion:
         return _table_keys_host(ctx, vp, ktab, has_gaze)
     table = table_device()
-    band_m = (0.0, 0.0)
+    band_m = _NO_BAND
     if metric == "perceptual":
         band_m = ktab.band if ktab is not None else _model_band(model, motion=has_motion)
-    band_m = jnp.asarray(band_m, jnp.float32)
+    band_m = _device_band(band_m)
     outs = []
     for ch in ctx.chunks:
         culled, inputs = _key_inputs(ch, vp, facing_flags(ch, vp, table), metric, has_gaze, has_motion, table_mode)

@@ -51,7 +51,7 @@ _SIZE_CAP_IMAGES = 16.0
 class ViewParams(NamedTuple):
     eye: jax.Array  # (3,)
     rot: jax.Array  # (3, 3) world -> camera
-    scal: jax.Array  # (10,) focal_px, tan_x, tan_y, near, size_cap, deg_per_px, kx, ky, gaze_err, 1/dt
+    scal: jax.Array  # (11,) focal_px, tan_x, tan_y, near, size_cap, deg_per_px, kx, ky, gaze_err, 1/dt, gaze_ring
     gaze: jax.Array  # (G, 2) pixel offsets from the image centre (y down)
     lum: jax.Array  # (4,) black cd/m2, peak - black cd/m2, scene min, scene max (relative)
     prev_eye: jax.Array
@@ -75,7 +75,7 @@ def view_params(view, scene_lum, origin=None) -> ViewParams:
     gaze = gaze - np.array([w / 2, h / 2])
     prev = view.previous
     scal = [view.focal_px, tan_y * w / h, tan_y, view.near, _SIZE_CAP_IMAGES * max(w, h), view.degrees_per_pixel,
-            px / d, py / d, view.gaze_error_deg, 1.0 / view.dt_s if prev is not None else 0.0]
+            px / d, py / d, view.gaze_error_deg, 1.0 / view.dt_s if prev is not None else 0.0, view.gaze_ring_deg]
     black = float(view.display.black_level)
     peak = float(view.display.peak_luminance)
     lo = min(scene_lum[0], view.background)
@@ -269,13 +269,16 @@ _UNROLL_GAZE = 8
 
 
 def eccentricity(vp: ViewParams, g: _Geometry, theta):
-    """Eccentricity (deg), minimum over the gaze points, less half of ``theta`` and the gaze error."""
-    kx, ky, gaze_err = vp.scal[6], vp.scal[7], vp.scal[8]
+    """Eccentricity (deg), minimum over the gaze points, less half of ``theta`` and the gaze error. With a
+    gaze ring (``View.gaze_ring_deg`` = r > 0) the angle to a gaze point is to the circle of radius r
+    around it: ``|angle - r|`` (on the sphere the nearest point of a circle lies on the great circle
+    through its centre)."""
+    kx, ky, gaze_err, ring = vp.scal[6], vp.scal[7], vp.scal[8], vp.scal[10]
     front_pt, eye_vec = _image(vp, g)
     gz = vp.gaze
 
-    def to(k):  # the angle to gaze point k
-        return _angle_deg(eye_vec, (gz[k, 0] * kx, gz[k, 1] * ky, 1.0))
+    def to(k):  # the angle to gaze point k (to its ring; |a - 0| is a itself, so no ring changes nothing)
+        return jnp.abs(_angle_deg(eye_vec, (gz[k, 0] * kx, gz[k, 1] * ky, 1.0)) - ring)
 
     ang = to(0)
     if gz.shape[0] <= _UNROLL_GAZE:  # a few gaze points: unrolled (the usual one: straight-line code)

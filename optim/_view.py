@@ -14,6 +14,12 @@ sphere (object units) into the quantities a contrast-sensitivity model takes:
   treated as foveal (eccentricity 0) and the eccentricity term costs nothing;
 * ``gaze_error_deg``: gaze uncertainty (deg) subtracted from every eccentricity [LHNW00 §4.4]:
   about 1 deg for an eye tracker, about 15 deg when head tracking stands in for it [CAVE]);
+* ``gaze_ring_deg``: each gaze point stands for the circle of gaze directions this many degrees around
+  it, the gaze somewhere on it (0, the default: the point itself). A node's eccentricity is then its
+  smallest angle to the circle, ``|angle to the point - gaze_ring_deg|``, the worst case over the
+  circle. With a sensitivity that falls with eccentricity it is also the worst case over every gaze at
+  least that far from the point: :func:`optim.lod_chain` uses it for a gaze known to lie some degrees
+  off the object;
 * ``lighting``: the scene's light (:class:`optim.Lighting`, directional plus ambient, object space)
   when the renderer relights the mesh from its own normals: fold contrast then covers what
   relighting can show (:mod:`optim._relight`). None (default) is the seeds' pre-lit case: the tree's
@@ -96,7 +102,8 @@ class View(eqx.Module):
     of view (deg; default: the angle the image subtends at the viewer, so rendering is geometrically
     correct for this display); ``width``, ``height`` image size (pixels); ``display`` (:class:`pmetric.Display`);
     ``gaze_px`` (G, 2) gaze points in pixels or None (no gaze: eccentricity 0 everywhere);
-    ``gaze_error_deg`` (deg); ``background`` relative luminance (0..1) of the background, used for
+    ``gaze_error_deg`` (deg); ``gaze_ring_deg`` (deg, 0 .. 180; see the module's notes: the gaze
+    somewhere on a circle of this radius around each gaze point); ``background`` relative luminance (0..1) of the background, used for
     silhouette contrast; ``near`` near-plane distance (object units); ``previous`` (View or None) and
     ``dt_s`` (s); ``lighting`` (:class:`optim.Lighting` or None: relit or pre-lit display).
 
@@ -115,6 +122,7 @@ class View(eqx.Module):
     display: object
     gaze_px: np.ndarray | None
     gaze_error_deg: float = eqx.field(static=True)
+    gaze_ring_deg: float = eqx.field(static=True)
     background: float = eqx.field(static=True)
     near: float = eqx.field(static=True)
     previous: "View | None"
@@ -132,6 +140,7 @@ class View(eqx.Module):
         display=None,
         gaze="center",
         gaze_error_deg: float = 1.0,
+        gaze_ring_deg: float = 0.0,
         previous: "View | None" = None,
         dt_s: float | None = None,
         background: float = 0.0,
@@ -177,6 +186,10 @@ class View(eqx.Module):
         if not 0 <= ge <= 180:  # an angle (1e300 overflowed the float32 terms)
             raise PlodError(f"View: gaze_error_deg must be an angle in [0, 180] deg, got {gaze_error_deg!r}")
         self.gaze_error_deg = ge
+        gr = real_or_nan(gaze_ring_deg)
+        if not 0 <= gr <= 180:
+            raise PlodError(f"View: gaze_ring_deg must be an angle in [0, 180] deg, got {gaze_ring_deg!r}")
+        self.gaze_ring_deg = gr
         bg = real_or_nan(background)
         if not (0.0 <= bg <= 1.0):
             raise PlodError(f"View: background must be a relative luminance in [0, 1], got {background!r}")
@@ -200,6 +213,8 @@ class View(eqx.Module):
             lighting = Lighting.coerce(lighting)
         self.lighting = lighting
         g = self._gaze_pixels(gaze)
+        if g is None and gr > 0:
+            raise PlodError("View: gaze_ring_deg needs a gaze (a circle around each gaze point); gaze is None")
         self.gaze_px = None if g is None else _frozen(g)
 
     @classmethod

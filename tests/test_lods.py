@@ -125,6 +125,72 @@ def test_switch_sizes_in_screen_and_object_units():
             optim.object_distance(deg, radius)
 
 
+def test_eccentric_keys_are_the_gaze_ring_views_and_fall_off_the_object(tree):
+    """With the gaze eccentricity_deg off the bounding sphere, a direction's keys are optim.score of the framed
+    view with a gaze ring of radius e + s/2 about the object's centre (and the gaze error); every key is at
+    most the keys without gaze information, and falls further as the gaze moves off."""
+    u = np.array([0.3, -0.5, 0.8])
+    s = 8.0
+    view = optim.View.framing(tree.vertices, s, direction=u, gaze="center", gaze_ring_deg=5.0 + s / 2,
+                              gaze_error_deg=0.5)
+    np.testing.assert_array_equal(optim.direction_keys(tree, s, u[None], eccentricity_deg=5.0, gaze_error_deg=0.5),
+                                  optim.score(tree, view))
+    d = optim.sphere_directions(12)
+    for s in (8.0, 1.0):
+        k0, k5, k20 = (optim.direction_keys(tree, s, d, eccentricity_deg=e) for e in (0.0, 5.0, 20.0))
+        assert (k5 <= k0).all() and (k20 <= k5).all()
+    near = k0[tree.internal]
+    near = (near > 0.5) & (near <= 10)  # folds near their threshold at 1 deg (the ones a switch size hinges on)
+    assert near.sum() > 100
+    assert np.median(k5[tree.internal][near] / k0[tree.internal][near]) < 0.7  # by a real factor
+    assert np.median(k20[tree.internal][near]) == 0.0  # 20 deg off, most are invisible at any distance
+
+
+def test_lod_sizes_are_certified_and_grow_off_the_gaze(tree):
+    """lod_sizes keeps the chain's cuts; at eccentricity 0 it finds the chain's own sizes again (within the
+    search's 3 %), off the gaze each size is certified over every direction with that gaze ring, is at
+    least the size without gaze information, and grows with the eccentricity; the sizes stay monotone."""
+    T = tree.n_triangles
+    levels = optim.lod_chain(tree, budgets=[T // 3, T // 10], directions=24, search_directions=8)
+    same = optim.lod_sizes(tree, levels, eccentricity_deg=0.0, directions=24, search_directions=8)
+    for a, b in zip(levels, same):
+        assert b.cut is a.cut
+        assert b.object_deg == pytest.approx(a.object_deg, rel=0.035)
+    prev = levels
+    for e in (10.0, 25.0):
+        off = optim.lod_sizes(tree, levels, eccentricity_deg=e, directions=24, search_directions=8)
+        for lv, p in zip(off, prev):
+            assert lv.cut is p.cut or lv.cut is levels[prev.index(p)].cut
+            k = optim.direction_keys(tree, lv.object_deg, 24, eccentricity_deg=e)
+            assert _folded_max(tree, lv.cut, k) <= 1.0 and lv.key <= 1.0
+            assert lv.object_deg >= 0.995 * p.object_deg
+        sizes = [lv.object_deg for lv in off]
+        assert sizes == sorted(sizes, reverse=True)
+        prev = off
+    assert off[-1].object_deg > 1.5 * levels[-1].object_deg  # 25 deg off: a real gain for the coarsest level
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(eccentricity_deg=-1.0), "eccentricity_deg must be an angle"),
+    (dict(eccentricity_deg=91.0), "eccentricity_deg must be an angle"),
+    (dict(eccentricity_deg=float("nan")), "eccentricity_deg must be an angle"),
+    (dict(eccentricity_deg="10"), "eccentricity_deg must be an angle"),
+    (dict(eccentricity_deg=10.0, gaze_error_deg=-1), "gaze_error_deg must be an angle"),
+    (dict(eccentricity_deg=10.0, levels=()), "non-empty sequence of LevelOfDetail"),
+    (dict(eccentricity_deg=10.0, levels="x"), "non-empty sequence of LevelOfDetail"),
+    (dict(eccentricity_deg=10.0, other_tree=True), "levels must come from this tree"),
+])
+def test_bad_lod_sizes_are_one_line_errors(tree, kw, message):
+    levels = kw.pop("levels", None)
+    if levels is None:
+        levels = optim.lod_chain(tree, object_deg=[5.0], directions=2)
+    if kw.pop("other_tree", False):
+        v, f, c = optim.bumpy_sphere(2, seed=1, colors=True)
+        levels = optim.lod_chain(optim.build_tree(v, f, c), object_deg=[5.0], directions=2)
+    with pytest.raises(PlodError, match=message):
+        optim.lod_sizes(tree, levels, directions=2, **kw)
+
+
 @pytest.mark.parametrize("kw, message", [
     (dict(), "exactly one of"),
     (dict(object_deg=[5], budgets=[10]), "exactly one of"),
@@ -210,6 +276,27 @@ def test_cli_writes_the_library_chain(capsys, mesh_file, tmp_path):
         assert math.isclose(r["distance"], res["bounding_radius"] / math.sin(math.radians(lv.object_deg) / 2))
 
 
+def test_cli_gives_the_library_sizes_off_the_gaze(capsys, mesh_file, tmp_path, monkeypatch):
+    """``--eccentricity 10,30`` adds optim.lod_sizes' sizes per level (same levels, gaze error passed on), in
+    the JSON and the table."""
+    code, out, _ = _lods(capsys, mesh_file, "--budgets", "300,100", "--directions", 8, "--eccentricity", "10,30",
+                         "--gaze-error", "2", "--json")
+    assert code == 0
+    res = json.loads(out)
+    tree = optim.load_tree(next((tmp_path / "cache").glob("*.npz")))
+    levels = optim.lod_chain(tree, budgets=[300, 100], directions=8)
+    assert res["eccentricity_deg"] == [10.0, 30.0] and res["gaze_error_deg"] == 2.0
+    for e_i, e in enumerate((10.0, 30.0)):
+        want = optim.lod_sizes(tree, levels, eccentricity_deg=e, directions=8, gaze_error_deg=2.0)
+        got = [r["off_gaze"][e_i] for r in res["levels"]]
+        assert [g["eccentricity_deg"] for g in got] == [e, e]
+        assert [g["object_deg"] for g in got] == [lv.object_deg for lv in want]
+        assert all(g["object_deg"] >= 0.995 * r["object_deg"] for g, r in zip(got, res["levels"]))
+    monkeypatch.setenv("COLUMNS", "200")  # the table's header on one line
+    code, out, _ = _lods(capsys, mesh_file, "--budgets", "300", "--directions", 4, "--eccentricity", "10")
+    assert code == 0 and "gaze 10 deg off" in out
+
+
 @pytest.mark.parametrize("argv, msg", [
     (["--budgets", "120%"], "each level needs 1..1,279"),
     (["--budgets", "100,200"], "--budgets must decrease"),
@@ -222,6 +309,12 @@ def test_cli_writes_the_library_chain(capsys, mesh_file, tmp_path):
     (["--object-deg", "2", "--out", "lo.txt"], "cannot write"),
     (["--object-deg", "2", "--normals", "smooth"], "--normals must be region, faces or none"),
     (["--object-deg", "2", "--screen-deg", "0"], "--screen-deg must be"),
+    (["--object-deg", "2", "--eccentricity", "0"], "is not an angle in (0, 90]"),
+    (["--object-deg", "2", "--eccentricity", "95"], "is not an angle in (0, 90]"),
+    (["--object-deg", "2", "--eccentricity", "nan"], "is not an angle in (0, 90]"),
+    (["--object-deg", "2", "--eccentricity", "a"], "--eccentricity: 'a' is not a number"),
+    (["--object-deg", "2", "--eccentricity", "20,10"], "--eccentricity must increase"),
+    (["--object-deg", "2", "--eccentricity", "10", "--gaze-error", "-1"], "--gaze-error must be"),
 ])
 def test_cli_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
     code, _, err = _lods(capsys, mesh_file, *argv)

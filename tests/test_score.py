@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import optim
 import pmetric
 from optim import View, imperceptible_cut, node_terms, score
+from pmetric import PlodError
 from tests._folds import incident_faces, left_faces, supported
 
 EYE = np.array([0.0, 0.0, 4.0])
@@ -131,6 +132,49 @@ def test_eccentricity_matches_reference_and_clamps_at_zero(sphere_tree):
     assert (node_terms(tree, View(eye=EYE, gaze=None)).eccentricity == 0).all()
 
 
+def test_gaze_ring_is_the_nearest_point_of_the_circle(sphere_tree):
+    """A gaze ring of radius r around a gaze point: eccentricity |angle - r| less theta/2 and the gaze error
+    (closed form), equal to many gaze points spread on that circle (a slow reference), and the plain gaze
+    when r = 0."""
+    tree = sphere_tree
+    gaze = np.array([[960.0, 540.0]])
+    ring = 6.0
+    view = View(eye=EYE, gaze=gaze, gaze_error_deg=0.5, gaze_ring_deg=ring)
+    t = node_terms(tree, view)
+    nodes = tree.internal[~t.culled[tree.internal]]
+    xy, _ = view.project(tree.center[nodes])
+    ang = view.visual_angle_px(xy, np.broadcast_to(gaze[0], xy.shape))
+    theta, _ = _reference_theta_ecc(tree, view, nodes, gaze)
+    want = np.maximum(np.abs(ang - ring) - theta / 2 - 0.5, 0.0)
+    assert t.eccentricity[nodes] == pytest.approx(want, rel=1e-3, abs=2e-3)
+    assert (want == 0).any() and (want > 2).any()  # nodes on the circle and well inside / outside it
+    # the same as gaze directions spread on the circle (4,096 of them: within 0.005 deg of every point)
+    c = view.rotation.T @ np.array([0.0, 0.0, -1.0])  # the screen centre's direction = gaze (960, 540)
+    a = np.cross(c, [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(c, a)
+    phi = np.linspace(0, 2 * np.pi, 4096, endpoint=False)[:, None]
+    r = np.radians(ring)
+    dirs = np.cos(r) * c + np.sin(r) * (np.cos(phi) * a + np.sin(phi) * b)
+    many = node_terms(tree, View(eye=EYE, gaze=dirs, gaze_error_deg=0.5)).eccentricity
+    assert t.eccentricity[nodes] == pytest.approx(many[nodes], abs=0.01)
+    # radius 0 is the gaze point itself, bit for bit
+    plain = node_terms(tree, View(eye=EYE, gaze=gaze, gaze_error_deg=0.5)).eccentricity
+    zero = node_terms(tree, View(eye=EYE, gaze=gaze, gaze_error_deg=0.5, gaze_ring_deg=0.0)).eccentricity
+    assert np.array_equal(plain, zero)
+
+
+@pytest.mark.parametrize("bad", [-1.0, 181.0, float("nan"), "x", 1j])
+def test_gaze_ring_out_of_range_is_refused(bad):
+    with pytest.raises(PlodError, match="gaze_ring_deg"):
+        View(eye=EYE, gaze_ring_deg=bad)
+
+
+def test_gaze_ring_needs_a_gaze():
+    with pytest.raises(PlodError, match="needs a gaze"):
+        View(eye=EYE, gaze=None, gaze_ring_deg=5.0)
+
+
 def test_huge_gaze_error_clamps_everything(sphere_tree):
     t = node_terms(sphere_tree, View(eye=EYE, gaze=[[0.0, 0.0]], gaze_error_deg=60.0))
     assert (t.eccentricity == 0).all()
@@ -198,16 +242,36 @@ def _reference_key(model, t, nodes):
     """The key of each node from its terms, written out: the own fold's distance; for a silhouette,
     the larger of it and the thin-band key min(k(c, theta), max(k(c w / theta, theta), k(c, w),
     min(2 c w M, 2 theta f*)))."""
-    from optim._score import band_constant
+    from optim._score import band_bound
 
-    m_band, f_star = band_constant(model)
+    bb = band_bound(model)
     d = lambda c, th: np.asarray(model.imperceptible_distance(c, th, t.eccentricity[nodes]), np.float64)  # noqa: E731
     c, c_own, th, w = t.contrast[nodes], t.own_contrast[nodes], t.theta[nodes], t.band_deg[nodes]
     k_own = d(c_own, th)
-    inner = np.minimum(2 * c * w * m_band, 2 * th * f_star)
+    kb = [_band_key_written(2 * ci * wi, ei, bb) for ci, wi, ei in zip(c, w, t.eccentricity[nodes])]
+    inner = np.minimum(kb, 2 * th * float(bb.f_star))
     thin = np.minimum(d(c, th), np.maximum(np.maximum(d(c * np.where(th > 0, w / np.where(th > 0, th, 1), 0), th),
                                                       d(c, w)), inner))
     return np.where(t.silhouette[nodes], np.maximum(k_own, thin), k_own)
+
+
+def _band_key_written(kc, e, bb):
+    """optim._score.band_key written out for one band in Python floats: K0 = kc M0, then the least of
+    b_i K0 - e / a_i over the envelopes, not below K0 tail."""
+    k0 = float(np.float32(kc) * bb.m0)
+    return max(min(float(b) * k0 - e * float(ia) for b, ia in zip(bb.b, bb.inv_a)), k0 * float(bb.tail))
+
+
+def _band_fixed_point(kc, e, m_e, rounds=400):
+    """The largest k with k <= kc M_e[cell(e / k)] on band_constants' grid (exact cells), by iterating from
+    the foveal bound (many rounds: a slow reference)."""
+    from optim._score import BAND_ECCENTRICITIES
+
+    k = kc * m_e[0]
+    for _ in range(rounds):
+        at = np.where(k > 0, e / np.where(k > 0, k, 1.0), 0.0)
+        k = kc * m_e[np.clip(np.searchsorted(BAND_ECCENTRICITIES, at, side="right") - 1, 0, len(m_e) - 1)]
+    return k
 
 
 def _thin_band_cases(seed, velocities=None):
@@ -227,11 +291,13 @@ def _check_thin_band(model, band, cases):
     [w, theta], contrast c w / s) and is at most the whole node's key; returns it with the distance."""
     from optim._score import thin_band_key
 
-    m_band, f_star = band
+    from optim._score import band_key
+
     theta, w, c, e, v = cases
     d = lambda cc, th: np.asarray(model.imperceptible_distance(cc, th, e, v), np.float64)  # noqa: E731
+    kb = band_key((2 * c * w).astype(np.float32), e.astype(np.float32), band, np)
     key = thin_band_key(np.zeros(len(c)), d(c, theta), d(c * w / theta, theta), d(c, w),
-                        2 * c * w * m_band, 2 * theta * f_star, np.ones(len(c), bool), np)
+                        kb, 2 * theta * float(band.f_star), np.ones(len(c), bool), np)
     for s_frac in np.linspace(0, 1, 41):
         s = w * (theta / w) ** s_frac
         assert (d(c * w / s, s) <= key * (1 + 1e-4) + 1e-9).all()
@@ -242,16 +308,73 @@ def _check_thin_band(model, band, cases):
 def test_thin_band_key_bounds_every_channel():
     """The silhouette key holds the distance of every channel that sees the band (half-period s in
     [w, theta], contrast c w / s), and is at most the whole node's key."""
-    from optim._score import band_constant, thin_band_key
+    from optim._score import band_bound, thin_band_key
 
     model = pmetric.KellyAbstract()
-    m_band, f_star = band_constant(model)
+    bb = band_bound(model)
+    m_band, f_star = float(bb.m0), float(bb.f_star)
     theta, w, c, e, v = cases = _thin_band_cases(3)
-    d = _check_thin_band(model, (m_band, f_star), cases)
+    d = _check_thin_band(model, bb, cases)
     # a band that spans the node is the whole node: no reduction
     full = thin_band_key(np.zeros(len(c)), d(c, theta), d(c, theta), d(c, theta), 2 * c * theta * m_band,
                          2 * theta * f_star, np.ones(len(c), bool), np)
     np.testing.assert_allclose(full, d(c, theta), rtol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["stela", "kellyabstract", "barten"])
+def test_band_constants_bound_every_eccentricity(name):
+    """The per-eccentricity band constants never increase, start at band_constant's M, and bound
+    max_f f S(f, e) at eccentricities between the grid points (200 random ones, 0 .. 100 deg), the
+    assumption band_key's cells rest on."""
+    from optim._score import BAND_ECCENTRICITIES, band_constant, band_constants
+
+    model = pmetric.make_model(name)
+    m_e, f_star = band_constants(model)
+    assert m_e[0] == band_constant(model)[0] and f_star == band_constant(model)[1]
+    assert (np.diff(m_e) <= 0).all()
+    e = np.concatenate([[0.0, 0.05], 10 ** np.random.default_rng(1).uniform(-1.5, 2.0, 198)])
+    f = np.logspace(-2.0, 2.5, 8193)
+    sens = np.asarray(model.sensitivity(f[None, :], e[:, None], 0.0), np.float64)
+    peak = np.where(np.isfinite(sens), f * sens, 0.0).max(axis=1)
+    cell = np.searchsorted(BAND_ECCENTRICITIES, e.astype(np.float32), side="right") - 1
+    assert (peak <= m_e[cell] * (1 + 1e-6)).all()
+    if name == "stela":  # a real fall-off: a tenth of the foveal bound by 10 deg
+        assert m_e[cell[e > 10]].max() < 0.1 * m_e[0]
+
+
+@pytest.mark.parametrize("name", ["stela", "kellyabstract", "barten"])
+def test_band_key_bounds_the_fixed_point_and_tightens_off_the_gaze(name):
+    """band_key's closed forms (XLA, numpy alike, and written out) lie above the band's largest
+    perceptible distance on band_constants' grid (the fixed point of k <= kc M(e / k), found slowly), never
+    above the foveal bound kc M0, equal to it without gaze or at eccentricity 0, and close to the fixed
+    point: for stelaCSF well below the foveal bound off the gaze."""
+    import jax.numpy as jnp
+
+    from optim._score import band_bound, band_constants, band_key
+
+    model = pmetric.make_model(name)
+    m_e, _ = band_constants(model)
+    bb = band_bound(model)
+    rng = np.random.default_rng(4)
+    n = 400
+    kc = (10 ** rng.uniform(-1, 3, n) / bb.m0).astype(np.float32)  # foveal bounds 0.1 .. 1000
+    e = np.where(rng.random(n) < 0.2, 0.0, 10 ** rng.uniform(-1, 2.2, n)).astype(np.float32)
+    got = np.asarray(band_key(jnp.asarray(kc), jnp.asarray(e), bb), np.float64)
+    np.testing.assert_allclose(band_key(kc, e, bb, np), got, rtol=1e-6)
+    np.testing.assert_allclose(got, [_band_key_written(a, b, bb) for a, b in zip(kc, e)], rtol=1e-5, atol=1e-6)
+    fixed = _band_fixed_point(kc.astype(np.float64), e.astype(np.float64), m_e)
+    foveal = kc * bb.m0
+    assert (got >= fixed * (1 - 1e-5) - 1e-6).all()
+    assert (got <= foveal).all()
+    np.testing.assert_array_equal(got[e == 0], foveal[e == 0])
+    np.testing.assert_array_equal(band_key(kc, None, bb, np), foveal)
+    near = (foveal > 1) & (foveal < 30) & (e > 0)  # the folds a decision hinges on
+    assert np.median(got[near] - fixed[near]) < 0.25 * np.median(foveal[near])  # close to the fixed point
+    if name == "stela":
+        off = near & (e > 5)
+        assert np.median(got[off] / foveal[off]) < 0.5
+    if name == "barten":  # no eccentricity term: nothing changes
+        np.testing.assert_array_equal(got, foveal)
 
 
 def test_perceptual_keys_match_the_model(sphere_tree):
@@ -564,10 +687,14 @@ def test_moving_thin_band_key_bounds_every_channel(moving_model):
     the moving band (half-period s in [w, theta], contrast c w / s, velocity v)."""
     from optim._score import band_constant
 
+    from optim._score import band_bound
+
     m0, f0 = band_constant(moving_model)
     m_band, f_star = band_constant(moving_model, motion=True)
     assert m_band >= m0 and f_star >= f0
-    _check_thin_band(moving_model, (m_band, f_star), _thin_band_cases(5, [0.0, 1.0, 8.0, 40.0]))
+    bb = band_bound(moving_model, motion=True)
+    assert bb.m0 == np.float32(m_band) and bb.f_star == np.float32(f_star)
+    _check_thin_band(moving_model, bb, _thin_band_cases(5, [0.0, 1.0, 8.0, 40.0]))
 
 
 def test_keys_are_continuous_as_the_motion_stops():
