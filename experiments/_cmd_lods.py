@@ -53,7 +53,7 @@ def register(sub) -> None:
     p.add_argument("--eccentricity", metavar="DEG,DEG,...", default=None,
                    help="also give each level's switch size with the gaze at least this far off the object "
                         "(increasing angles in (0, 90] deg, e.g. 5,10,20: for an eye-tracked renderer)")
-    p.add_argument("--gaze-error", metavar="DEG", default="1",
+    p.add_argument("--gaze-error", metavar="DEG", default=None,
                    help="the eye tracker's error with --eccentricity, deg, 0 up to 90 (default 1)")
     p.add_argument("--no-cache", action="store_true", help="do not read or write the tree cache")
     p.add_argument("--out", metavar="NAME.ply", default=None,
@@ -150,7 +150,10 @@ def lods(args) -> dict:
     if args.normals not in (*optim.NORMALS, "none"):
         raise PlodError(f"--normals must be region, faces or none, got {args.normals!r}")
     eccs = _eccentricities(args.eccentricity)
-    gaze_error = _number("--gaze-error", args.gaze_error, lo=0.0, hi=90.0, strict=False)
+    if args.gaze_error is not None and not eccs:
+        raise PlodError("--gaze-error needs --eccentricity (it is the eye tracker's error off the gaze)")
+    gaze_error = _number("--gaze-error", "1" if args.gaze_error is None else args.gaze_error, lo=0.0, hi=90.0,
+                         strict=False)
     sizes = _sizes(args.object_deg) if args.object_deg is not None else None
     if sizes is not None:  # checked before the tree is built
         for s in sizes:

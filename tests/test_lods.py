@@ -315,6 +315,7 @@ def test_cli_gives_the_library_sizes_off_the_gaze(capsys, mesh_file, tmp_path, m
     (["--object-deg", "2", "--eccentricity", "a"], "--eccentricity: 'a' is not a number"),
     (["--object-deg", "2", "--eccentricity", "20,10"], "--eccentricity must increase"),
     (["--object-deg", "2", "--eccentricity", "10", "--gaze-error", "-1"], "--gaze-error must be"),
+    (["--object-deg", "2", "--gaze-error", "2"], "--gaze-error needs --eccentricity"),
 ])
 def test_cli_bad_flags_give_one_line_errors(capsys, mesh_file, argv, msg):
     code, _, err = _lods(capsys, mesh_file, *argv)
