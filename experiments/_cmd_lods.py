@@ -90,26 +90,26 @@ def _budgets(text: str, total: int) -> list[int]:
     return out
 
 
-def _sizes(text: str) -> list[float]:
+def _numbers(flag: str, text: str) -> list[tuple[str, float]]:
+    """(item, value) per comma-separated item of ``text``; an item that is not a number is refused."""
     out = []
-    for s in _list("--object-deg", text):
+    for s in _list(flag, text):
         try:
-            x = float(s)
+            out.append((s, float(s)))
         except ValueError:
-            raise PlodError(f"--object-deg: {s!r} is not a number") from None
-        out.append(x)
+            raise PlodError(f"{flag}: {s!r} is not a number") from None
     return out
+
+
+def _sizes(text: str) -> list[float]:
+    return [x for _, x in _numbers("--object-deg", text)]
 
 
 def _eccentricities(text: str | None) -> list[float]:
     if text is None:
         return []
     out = []
-    for s in _list("--eccentricity", text):
-        try:
-            x = float(s)
-        except ValueError:
-            raise PlodError(f"--eccentricity: {s!r} is not a number") from None
+    for s, x in _numbers("--eccentricity", text):
         if not 0 < x <= 90:
             raise PlodError(f"--eccentricity: {s!r} is not an angle in (0, 90] deg (how far the gaze lies off the object)")
         out.append(x)

@@ -257,7 +257,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
             c = _nested(tree, c.unfolded & prev, k, "budget")
             return c, c.distance
 
-        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label)
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_chain")
         levels.append(LevelOfDetail(cut, s, m, capped=s >= top))
         prev = cut.unfolded
         s0 = s
@@ -296,7 +296,7 @@ def lod_sizes(tree, levels, *, eccentricity_deg: float, directions=DIRECTIONS, s
             return lv.cut, _folded_key(tree, lv.cut.unfolded, k)
 
         s0 = min(max(lv.object_deg, MIN_OBJECT_DEG), top)
-        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label)
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_sizes")
         out.append(LevelOfDetail(lv.cut, s, m, capped=s >= top))
     return _monotone_sizes(tree, out, keys_at)
 
@@ -314,9 +314,7 @@ def _key_source(tree, directions, search_directions, model, display, lighting, e
                         f"{type(progress).__name__}")
     top = max_object_deg(display)  # (checks the display)
     e = _eccentricity(eccentricity_deg)
-    ge = real_or_nan(gaze_error_deg)
-    if not 0 <= ge <= 180:
-        raise PlodError(f"{who}: gaze_error_deg must be an angle in [0, 180] deg, got {gaze_error_deg!r}")
+    ge = _angle(f"{who}: gaze_error_deg", gaze_error_deg, 0.0, 180.0, True)
 
     def keys_at(s, stage, over=dirs):
         cb = None if progress is None else (lambda d, n: progress(stage, d, n))
@@ -326,7 +324,7 @@ def _key_source(tree, directions, search_directions, model, display, lighting, e
     return keys_at, dirs, search, top
 
 
-def _largest_size(tree, at, keys_at, s0: float, top: float, label: str) -> tuple[float, Cut, float]:
+def _largest_size(tree, at, keys_at, s0: float, top: float, label: str, who: str) -> tuple[float, Cut, float]:
     """(size, cut, its largest folded key <= 1): the search of :func:`lod_chain`'s budget levels, ``at(s)``
     giving (cut, largest folded key over the search directions) at size s, then the certificate over
     every direction (``keys_at``) with the cut kept."""
@@ -350,7 +348,7 @@ def _largest_size(tree, at, keys_at, s0: float, top: float, label: str) -> tuple
     while best is None:  # no size tried was imperceptible: shrink the smallest until one is
         s = s / max(m, 1.0) * 0.97
         if s < MIN_OBJECT_DEG:
-            raise PlodError(f"lod_chain: no size at which the {label} is imperceptible")
+            raise PlodError(f"{who}: no size at which the {label} is imperceptible")
         cut, m = at(s)
         if m <= 1.0:
             best = (s, cut, m)

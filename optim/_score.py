@@ -557,24 +557,25 @@ def _table_inputs(ch, vp, has_gaze):
             cone_front & cone_back)
 
 
-@functools.partial(jax.jit, static_argnames=("has_gaze",))
-def _silhouette_indices_xla(c_sil, ecc, theta, band, bb, has_gaze):
+@jax.jit
+def _silhouette_indices_xla(c_sil, ecc, theta, band, bb):
     c_a, kc = _thin_parts(c_sil, theta, band)
     return (table_index(c_sil, theta, ecc), table_index(c_a, theta, ecc), table_index(c_sil, band, ecc),
-            band_key(kc, ecc if has_gaze else None, bb))
+            band_key(kc, ecc, bb))
 
 
-def _silhouette_indices(c_sil, ecc, theta, band, bb, has_gaze):
+def _silhouette_indices(c_sil, ecc, theta, band, bb):
     """Key-table indices of the silhouette, widest-channel and band contrasts and the band key
     (:func:`band_key` of ``2 c w`` with the :class:`BandBound` ``bb``; the thin-band parts,
     :func:`thin_band_key`) of some nodes, numpy (S,) in and out; the XLA arithmetic of
     :func:`table_index` and :func:`band_key` (bit-identical to the XLA path), padded to a power of two
-    >= 1024 nodes so that few lengths compile."""
+    >= 1024 nodes so that few lengths compile. Without a gaze ``ecc`` is 0, where :func:`band_key` is
+    exactly the foveal bound."""
     n = c_sil.shape[0]
     cols = np.zeros((4, max(1024, 1 << (n - 1).bit_length())), np.float32)  # padding: contrast 0 -> index -1
     for row, x in zip(cols, (c_sil, ecc, theta, band)):
         row[:n] = x
-    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(*cols, _device_band(bb), has_gaze))
+    return tuple(np.asarray(x)[:n] for x in _silhouette_indices_xla(*cols, _device_band(bb)))
 
 
 def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
@@ -603,7 +604,7 @@ def _table_keys_host(ctx, vp, ktab: _KeyTable, has_gaze):
     s = np.concatenate(sil_pos)
     if s.size:
         c_sil, ecc, th, bd = (np.concatenate(c) for c in zip(*sil_cols))
-        i_sil, i_a, i_b, kb = _silhouette_indices(c_sil, ecc, th, bd, ktab.band, has_gaze)
+        i_sil, i_a, i_b, kb = _silhouette_indices(c_sil, ecc, th, bd, ktab.band)
         f_star = np.float32(ktab.band.f_star)
         key[s] = thin_band_key(key[s], table_gather(tab, i_sil, th, np), table_gather(tab, i_a, th, np),
                                table_gather(tab, i_b, bd, np), kb, np.float32(2.0) * th * f_star, True, np)

@@ -18,7 +18,7 @@ sphere (object units) into the quantities a contrast-sensitivity model takes:
   it, the gaze somewhere on it (0, the default: the point itself). A node's eccentricity is then its
   smallest angle to the circle, ``|angle to the point - gaze_ring_deg|``, the worst case over the
   circle. With a sensitivity that falls with eccentricity it is also the worst case over every gaze at
-  least that far from the point: :func:`optim.lod_chain` uses it for a gaze known to lie some degrees
+  least that far from the point: :func:`optim.lod_sizes` uses it for a gaze known to lie some degrees
   off the object;
 * ``lighting``: the scene's light (:class:`optim.Lighting`, directional plus ambient, object space)
   when the renderer relights the mesh from its own normals: fold contrast then covers what
