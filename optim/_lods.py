@@ -159,16 +159,17 @@ def direction_keys(tree, object_deg: float, directions=64, *, model=None, displa
     radius ``eccentricity_deg + object_deg / 2`` about the object's centre), less ``gaze_error_deg``
     (deg, default 1: an eye tracker [LHNW00 §4.4])."""
     from ._score import score
-    from ._view import View
+    from ._view import View, framing_sphere
 
     s = _check_size("object_deg", object_deg, display)
     e = _eccentricity(eccentricity_deg)
     dirs = _directions(directions)
     gaze = dict(gaze=None) if e == 0 else dict(gaze="center", gaze_ring_deg=e + 0.5 * s)
     gaze["gaze_error_deg"] = gaze_error_deg  # (checked by View either way)
+    sphere, display = framing_sphere(tree.vertices, who="direction_keys"), _display(display)  # once, not per view
     out = None
     for i, u in enumerate(dirs):
-        view = View.framing(tree.vertices, s, direction=u, display=display, lighting=lighting, **gaze)
+        view = View.framing(None, s, direction=u, sphere=sphere, display=display, lighting=lighting, **gaze)
         k = score(tree, view, model, "perceptual")
         out = k if out is None else np.maximum(out, k)
         if progress is not None:

@@ -95,6 +95,18 @@ def framing_sphere(vertices, *, who: str = "framing_sphere") -> tuple[np.ndarray
     return centre, float(np.sqrt(((v - centre) ** 2).sum(1).max()))
 
 
+def _sphere(sphere) -> tuple[np.ndarray, float]:
+    """``sphere`` checked as :func:`framing_sphere`'s ``(centre (3,), radius >= 0)``."""
+    try:
+        centre, radius = sphere
+        c, r = np.asarray(centre, dtype=np.float64), float(radius)
+    except (TypeError, ValueError):
+        raise PlodError(f"View.framing: sphere must be framing_sphere's (centre (3,), radius), got {sphere!r}") from None
+    if c.shape != (3,) or not (np.isfinite(c).all() and math.isfinite(r) and r >= 0):
+        raise PlodError(f"View.framing: sphere must be a finite centre (3,) and a finite radius >= 0, got {sphere!r}")
+    return c, r
+
+
 class View(eqx.Module):
     """A camera, the display it is shown on, the viewer's gaze and (optionally) the previous view.
 
@@ -219,12 +231,14 @@ class View(eqx.Module):
 
     @classmethod
     def framing(cls, vertices, object_deg: float = 30.0, direction=(0.0, 0.0, 1.0), up=(0.0, 1.0, 0.0),
-                **kw) -> "View":
+                *, sphere=None, **kw) -> "View":
         """A view looking at the centre of ``vertices`` (V, 3) from ``direction`` such that their bounding
         sphere (about the bounding-box centre) subtends ``object_deg`` degrees of the viewer's visual
         field (default 30 deg: the study of [LH01 §6.2], an object on a 46 deg screen). ``kw`` go to ``View``
-        (``display``, ``gaze``, ``gaze_error_deg`` ...); the camera's field of view is the display's."""
-        centre, radius = framing_sphere(vertices, who="View.framing")
+        (``display``, ``gaze``, ``gaze_error_deg`` ...); the camera's field of view is the display's.
+        ``sphere``: :func:`framing_sphere` of ``vertices``, given to frame one object from many directions
+        without a pass over its vertices per view (``vertices`` is then not read)."""
+        centre, radius = framing_sphere(vertices, who="View.framing") if sphere is None else _sphere(sphere)
         deg = _positive("object_deg (deg)", object_deg, upper=180.0)
         d = _vec3("direction", direction, bounded=False)
         if not np.any(d):

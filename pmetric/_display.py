@@ -34,6 +34,7 @@ __all__ = ["Display", "michelson", "michelson_range", "relative_luminance", "srg
 
 _REC709 = (0.2126, 0.7152, 0.0722)
 _TRANSFERS = ("srgb", "gamma", "lut")
+_DEFAULTS: dict = {}  # Display.default() per JAX float width (jax_enable_x64)
 
 
 def _concrete(x) -> np.ndarray | None:
@@ -293,7 +294,20 @@ class Display(eqx.Module):
     @classmethod
     def default(cls) -> "Display":
         """24-inch 16:9 1920x1080 sRGB monitor spanning 46 deg horizontally (the study of [LH01 §6.2]),
-        peak 200 cd/m2, black 0.5 cd/m2; viewing distance = (W/2) / tan(23 deg) = 0.6258 m."""
+        peak 200 cd/m2, black 0.5 cd/m2; viewing distance = (W/2) / tan(23 deg) = 0.6258 m.
+
+        One instance per JAX float width (a ``Display`` is immutable): every :class:`optim.View` without a
+        display uses it, and building it anew (its checks) cost about as much as the rest of the view."""
+        if cls is not Display:
+            return cls._make_default()
+        x64 = bool(jax.config.read("jax_enable_x64"))
+        d = _DEFAULTS.get(x64)
+        if d is None:
+            d = _DEFAULTS[x64] = cls._make_default()
+        return d
+
+    @classmethod
+    def _make_default(cls) -> "Display":
         diag_m = 24 * 0.0254
         w = diag_m * 16 / math.hypot(16, 9)
         return cls.from_diagonal(24, (16, 9), (1920, 1080), (w / 2) / math.tan(math.radians(23.0)))

@@ -59,6 +59,38 @@ def test_framing_subtends_object_deg():
         View.framing(pts, 30.0, up=(0, 0, 0))
 
 
+def test_framing_from_a_given_sphere_is_the_same_view():
+    """``View.framing(sphere=framing_sphere(v))`` (what ``direction_keys`` does once per object, not per
+    view) frames exactly as from the vertices; a malformed sphere is a one-line error."""
+    from optim import framing_sphere
+
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(300, 3)) * [2.0, 0.5, 1.0] + [-4.0, 1.0, 7.0]
+    sphere = framing_sphere(pts)
+    for d in ((1, 0, 0), (0.3, -2, 1), (0, 1, 0)):
+        a = View.framing(pts, 12.0, direction=d, gaze=None)
+        b = View.framing(None, 12.0, direction=d, gaze=None, sphere=sphere)
+        for name in ("eye", "target", "up"):
+            assert np.array_equal(getattr(a, name), getattr(b, name))
+    for bad, msg in ((None.__class__, "sphere must be"), ((np.zeros(2), 1.0), "finite centre"),
+                     ((np.zeros(3), -1.0), "radius >= 0"), ((np.full(3, np.nan), 1.0), "finite centre"),
+                     ((np.zeros(3), "r"), "sphere must be")):
+        with pytest.raises(ValueError, match=msg):
+            View.framing(None, 12.0, sphere=bad)
+
+
+def test_the_default_display_is_built_once_per_float_width():
+    import jax
+
+    a, b = pmetric.Display.default(), pmetric.Display.default()
+    assert a is b and View(eye=(0, 0, 5.0), target=(0, 0, 0)).display is a
+    with jax.enable_x64(True):
+        c = pmetric.Display.default()
+        assert c is pmetric.Display.default() and c.width.dtype == np.float64
+    assert a.width.dtype == (np.float64 if jax.config.jax_enable_x64 else np.float32)
+    assert float(c.distance) == pytest.approx(float(a.distance), rel=1e-6)
+
+
 def test_gaze_forms():
     v = View(eye=(0, 0, 5))
     assert v.gaze_px == pytest.approx(np.array([[960.0, 540.0]]))
