@@ -227,6 +227,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
         raise PlodError("lod_chain: give exactly one of object_deg (sizes) and budgets (triangle counts)")
     keys_at, dirs, search, top = _key_source(tree, directions, search_directions, model, display, lighting,
                                              eccentricity_deg, gaze_error_deg, progress, "lod_chain")
+    off_gaze = _eccentricity(eccentricity_deg) > 0  # keys far from proportional to the size: tighten the sizes
     prev = np.ones(tree.n_nodes, dtype=bool)  # the finer level's unfolded mask (the input: all)
 
     levels = []
@@ -258,7 +259,7 @@ def lod_chain(tree, *, object_deg=None, budgets=None, directions=DIRECTIONS, sea
             c = _nested(tree, c.unfolded & prev, k, "budget")
             return c, c.distance
 
-        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_chain")
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_chain", tighten=off_gaze)
         levels.append(LevelOfDetail(cut, s, m, capped=s >= top))
         prev = cut.unfolded
         s0 = s
@@ -273,8 +274,10 @@ def lod_sizes(tree, levels, *, eccentricity_deg: float, directions=DIRECTIONS, s
     level's largest size (deg) at which every fold it makes is imperceptible from every one of
     ``directions`` with the gaze anywhere on the circle that far beyond the sphere's outline (see
     :func:`direction_keys`), found as :func:`lod_chain` finds a budget level's size (searched over
-    ``search_directions`` from the level's own size, certified over all ``directions``), then made
-    monotone (a finer level is imperceptible wherever a coarser one is). ``model``, ``display``,
+    ``search_directions`` from the level's own size, certified over all ``directions``, then tightened
+    over all of them: never below the level's own size where that is certified too), then made
+    monotone (a finer level is imperceptible wherever a coarser one is). ``levels`` must be nested, finest
+    first (a chain, or part of one). ``model``, ``display``,
     ``lighting`` should be the chain's. An engine that knows the angle between the gaze and the object's
     bounding sphere uses a level up to the size given for the largest eccentricity at or below that
     angle. ``eccentricity_deg = 0`` recomputes the chain's own sizes (without gaze information).
@@ -284,10 +287,19 @@ def lod_sizes(tree, levels, *, eccentricity_deg: float, directions=DIRECTIONS, s
     if isinstance(levels, LevelOfDetail) or not isinstance(levels, (list, tuple)) or not levels \
             or not all(isinstance(lv, LevelOfDetail) for lv in levels):
         raise PlodError("lod_sizes: levels must be a non-empty sequence of LevelOfDetail (lod_chain's result)")
-    for lv in levels:
+    for j, lv in enumerate(levels):
+        if not isinstance(lv.cut, Cut):
+            raise PlodError(f"lod_sizes: a level's cut must be an optim.Cut (lod_chain's), got {type(lv.cut).__name__}")
         if np.shape(lv.cut.unfolded) != (tree.n_nodes,):
             raise PlodError(f"lod_sizes: a level's cut has {np.size(lv.cut.unfolded)} nodes, the tree "
                             f"{tree.n_nodes:,}: levels must come from this tree's chain")
+        if not 0 < real_or_nan(lv.object_deg) < math.inf:
+            raise PlodError(f"lod_sizes: a level's object_deg must be a size > 0 deg (lod_chain's), got "
+                            f"{lv.object_deg!r}")
+        # the monotone step below lifts a finer level to a coarser one's size: right only for nested levels
+        if j and (lv.cut.unfolded[tree.internal] & ~levels[j - 1].cut.unfolded[tree.internal]).any():
+            raise PlodError(f"lod_sizes: levels must be nested, finest first (lod_chain's order): level {j + 1} "
+                            f"unfolds a node level {j} folds")
     out = []
     for j, lv in enumerate(levels):
         label = f"level {j + 1} ({lv.triangles:,} triangles) at {eccentricity_deg:g} deg off"
@@ -296,8 +308,8 @@ def lod_sizes(tree, levels, *, eccentricity_deg: float, directions=DIRECTIONS, s
             k = keys_at(s, f"{label}: search at {s:.3g} deg", search)
             return lv.cut, _folded_key(tree, lv.cut.unfolded, k)
 
-        s0 = min(max(lv.object_deg, MIN_OBJECT_DEG), top)
-        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_sizes")
+        s0 = min(max(float(lv.object_deg), MIN_OBJECT_DEG), top)
+        s, cut, m = _largest_size(tree, at, keys_at, s0, top, label, "lod_sizes", tighten=True, floor=s0)
         out.append(LevelOfDetail(lv.cut, s, m, capped=s >= top))
     return _monotone_sizes(tree, out, keys_at)
 
@@ -325,10 +337,12 @@ def _key_source(tree, directions, search_directions, model, display, lighting, e
     return keys_at, dirs, search, top
 
 
-def _largest_size(tree, at, keys_at, s0: float, top: float, label: str, who: str) -> tuple[float, Cut, float]:
+def _largest_size(tree, at, keys_at, s0: float, top: float, label: str, who: str, tighten: bool = False,
+                  floor: float | None = None) -> tuple[float, Cut, float]:
     """(size, cut, its largest folded key <= 1): the search of :func:`lod_chain`'s budget levels, ``at(s)``
     giving (cut, largest folded key over the search directions) at size s, then the certificate over
-    every direction (``keys_at``) with the cut kept."""
+    every direction (``keys_at``) with the cut kept; with ``tighten``, then :func:`_tighten` (``floor``
+    its first try)."""
     best, fail = None, math.inf  # (size, cut, key) with key <= 1, the largest; the smallest size with key > 1
     s = min(s0, top)
     for _ in range(_ITERATIONS):
@@ -354,13 +368,50 @@ def _largest_size(tree, at, keys_at, s0: float, top: float, label: str, who: str
         if m <= 1.0:
             best = (s, cut, m)
     s, cut, m = best
+    bad = math.inf  # the smallest size found to fail over every direction
     while True:  # certify over every direction, the cut kept
         k = keys_at(s, f"{label}: check at {s:.3g} deg")
         m = _folded_key(tree, cut.unfolded, k)
         if m <= 1.0:
             break
+        bad = s
         s = s / m * 0.999
+    if tighten:
+        s, m = _tighten(tree, cut, keys_at, s, m, bad, top, label, floor)
     return float(s), cut, m
+
+
+def _tighten(tree, cut, keys_at, s: float, m: float, bad: float, top: float, label: str,
+             floor: float | None) -> tuple[float, float]:
+    """(size, key): from ``s``, certified over every direction with key ``m``, up towards ``bad`` (the
+    smallest size seen to fail over every direction, or inf), over every direction, as the search: until
+    the key is within ``_TIGHT`` of 1, the size is ``top`` or the bracket is within 1 %. Off the gaze keys
+    do not scale with the size (a fold's key jumps from 0 to ~9 as it comes into view; the search
+    directions are not the certificate's), so the certificate's step ``s / m`` could stop 20x below the
+    largest certified size, below the size without gaze. ``floor`` (the level's own size: without gaze
+    certified over the same directions, so with any gaze too) is tried first."""
+
+    def check(x):
+        return _folded_key(tree, cut.unfolded, keys_at(x, f"{label}: tighten at {x:.3g} deg"))
+
+    if floor is not None and s < floor < bad:
+        mf = check(floor)
+        if mf <= 1.0:
+            s, m = floor, mf
+        else:
+            bad = floor
+    for _ in range(2 * _ITERATIONS):  # (from MIN_OBJECT_DEG to the top, 1 % takes 12 bisections)
+        if m >= _TIGHT or s >= top or bad / s < 1.01:
+            break
+        nxt = top if m <= 0.0 else min(s / m * 0.999, top)
+        if not s < nxt < bad:  # the scaling overshot: bisect (in log size)
+            nxt = math.sqrt(s * min(bad, top))
+        mk = check(nxt)
+        if mk <= 1.0:
+            s, m = nxt, mk
+        else:
+            bad = nxt
+    return s, m
 
 
 def _monotone_sizes(tree, levels: list, keys_at) -> tuple[LevelOfDetail, ...]:
