@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from optim._terrain import (Heightfield, TerrainCamera, TerrainCriteria, crop_heightfield, fractal_heightfield,
-                            full_mesh, refine_terrain, straddle_triangles, terrain_mesh)
+                            TerrainLOD, full_mesh, refine_terrain, straddle_triangles, terrain_mesh)
 from pmetric import PlodError
 
 ALL = TerrainCriteria(xi=4.0)
@@ -132,6 +132,43 @@ def test_adding_a_criterion_adds_triangles_only_where_the_view_boundary_crosses(
     assert bool(worse) == (seed in (10, 29))
 
 
+@pytest.mark.parametrize("seed", [3, 10, 29, 41])
+def test_split_view_edge_makes_adding_a_criterion_never_add_triangles(seed):
+    """TerrainCriteria(split_view_edge=True): the squares the view's edge crosses split to the finest level,
+    so on the scenes where a criterion adds triangles by default (10 and 29) none does: for all 32 pairs
+    (mask, mask + one criterion) the split sets nest and the count does not grow. Every drawn leaf above
+    the finest level is then wholly in view (straddle_triangles counts only finest leaves), the mesh has
+    no crack (checked without cull, where the leaves tile the grid), and the option only adds splits to the
+    default refinement."""
+    _scripts_on_path()
+    from monotone import NAMES, scene
+
+    hf, cam, prev, xi = scene(np.random.default_rng(seed))
+    lods, default = {}, {}
+    for mask in range(16):
+        on = {k: bool(mask >> b & 1) for b, k in enumerate(NAMES)}
+        lods[mask] = refine_terrain(hf, cam, TerrainCriteria(xi=xi, split_view_edge=True, **on), prev)
+        default[mask] = refine_terrain(hf, cam, TerrainCriteria(xi=xi, **on), prev)
+        for a, b in zip(default[mask].split, lods[mask].split):
+            assert not (a & ~b).any()
+    added = []
+    for mask in range(16):
+        for b in range(4):
+            if not mask >> b & 1:
+                fine, coarse = lods[mask], lods[mask | 1 << b]
+                for sf, sc in zip(fine.split, coarse.split):
+                    assert not (sc & ~sf).any(), (mask, NAMES[b])
+                added.append(default[mask | 1 << b].triangles - default[mask].triangles)
+                assert coarse.triangles <= fine.triangles, (mask, NAMES[b])
+    assert (max(added) > 0) == (seed in (10, 29))  # what the default does on these scenes
+    for mask in (8, 15):  # cull alone, everything
+        lod = lods[mask]
+        edge_leaves = TerrainLOD(lod.split, [rc if l == hf.levels else rc[:0] for l, rc in enumerate(lod.drawn)],
+                                 [f if l == hf.levels else f[:0] for l, f in enumerate(lod.fans)], 0, hf.levels)
+        assert straddle_triangles(hf, cam, lod) == straddle_triangles(hf, cam, edge_leaves)
+    _check_crack_free(hf, lods[7])  # (without cull the leaves tile the grid: the forced splits leave no crack)
+
+
 def test_culling_drops_everything_behind():
     hf = Heightfield(fractal_heightfield(65, seed=2, relief=10.0), 1.0)
     cam = TerrainCamera(eye=np.array([32.0, 20.0, -10.0]), forward=np.array([0.0, 0.0, -1.0]), fov_deg=(90.0, 60.0))
@@ -185,6 +222,7 @@ _EYE, _FWD = np.array([16.0, 20.0, -5.0]), np.array([0.0, -0.3, 1.0])
     (lambda: TerrainCriteria(velocity_deg_s=float("nan")), "velocity_deg_s must be a finite number in"),
     (lambda: TerrainCriteria(tol=float("nan")), "tol must be a finite number in"),
     (lambda: TerrainCriteria(cull="yes"), "cull must be True or False"),
+    (lambda: TerrainCriteria(split_view_edge=1), "split_view_edge must be True or False"),
     (lambda: refine_terrain(Heightfield(np.zeros((9, 9)), 1.0), TerrainCamera(_EYE, _FWD), previous=(1,)),
      r"previous\[0\] must be a TerrainCamera"),
     # 2026-12-07 fuzz round: raw TypeError / AttributeError / ValueError before
