@@ -698,17 +698,14 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     cand = np.ones((1, 1), bool)  # the squares whose parent is split (dense per level); the root
     edge = criteria.split_view_edge
     for l in range(L):
-        m = 2 ** l
         ok = cand & (hf.err[l] > criteria.tol)
         if criteria.cull or edge:
             # 0 unknown, 1 visible, 2 culled, 3 contained (its box, and every descendant's, in view)
             cmap = np.zeros((1, 1), np.int8) if l == 0 else _inherit(culled[l - 1])
             t = np.flatnonzero((cand if edge else ok) & (cmap != 3))
-            if len(t):
-                c, inside = _culled(hf, camera, R, l, t >> l, t & (m - 1), inside=True)
-                cmap.flat[t] = np.where(c, 2, np.where(inside, 3, 1))
-                if criteria.cull:
-                    ok.flat[t[c]] = False
+            c = _cull_states(hf, camera, R, l, cmap, t)
+            if criteria.cull:
+                ok.flat[t[c]] = False
             culled[l] = cmap
         if criteria.size:
             if l <= small_levels:
@@ -727,6 +724,17 @@ def refine_terrain(hf: Heightfield, camera: TerrainCamera, criteria: TerrainCrit
     return _leaves(hf, camera, R, criteria, split, culled)  # (culls only with criteria.cull)
 
 
+def _cull_states(hf, camera, R, l, cmap, t):
+    """The field-of-view test of the level-``l`` squares at flat indices ``t`` written into the level's
+    cull map ``cmap`` (2 culled, 3 contained, 1 visible, see :func:`refine_terrain`); returns their
+    culled flags (len(t),) bool."""
+    if not len(t):
+        return np.zeros(0, bool)
+    c, inside = _culled(hf, camera, R, l, t >> l, t & (2 ** l - 1), inside=True)
+    cmap.flat[t] = np.where(c, 2, np.where(inside, 3, 1))
+    return c
+
+
 def _split_edge_leaves(hf, camera, R, split, culled):
     """``split_view_edge``: split (in place) every leaf above the finest level that the view's edge
     crosses, including those the restriction pass made (their cull state is tested here), and close the
@@ -739,10 +747,7 @@ def _split_edge_leaves(hf, camera, R, split, culled):
         for l in range(L):
             leaf = ~split[l] if l == 0 else _up(split[l - 1]) & ~split[l]
             cmap = culled[l]
-            t = np.flatnonzero(leaf & (cmap == 0))
-            if len(t):
-                c, inside = _culled(hf, camera, R, l, t >> l, t & (2 ** l - 1), inside=True)
-                cmap.flat[t] = np.where(c, 2, np.where(inside, 3, 1))
+            _cull_states(hf, camera, R, l, cmap, np.flatnonzero(leaf & (cmap == 0)))
             on_edge = leaf & (cmap == 1)
             if on_edge.any():
                 split[l] |= on_edge  # (their children's states, 0, are tested at the next level)
