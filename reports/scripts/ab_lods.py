@@ -14,14 +14,13 @@ with the default light, object sizes cycling through ``--sizes`` (deg), no gaze,
 Prints wall ms per direction (or per chain; median over calls) of each and the paired ratio.
 """
 import argparse
-import json
 import os
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from _workers import old_and_new  # (this folder: the scripts run as files)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,12 +52,6 @@ for line in sys.stdin:
 """
 
 
-def start(src: Path, mesh: str, n: int, chain: bool):
-    env = dict(os.environ, PYTHONPATH=str(src))
-    return subprocess.Popen([sys.executable, "-c", WORKER, mesh, str(n), "1" if chain else "0"], cwd=src, env=env,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("rev", nargs="?", default="ca461ef")
@@ -69,23 +62,9 @@ def main():
     ap.add_argument("--chain", action="store_true", help="time whole lod_chain calls (budgets 25 / 5 / 2 %%)")
     a = ap.parse_args()
     mesh = a.mesh if a.mesh.startswith("sphere:") else str(ROOT.parent / "shared" / "data" / "meshes" / a.mesh)
-    with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.check_output(["git", "-C", str(ROOT), "archive", a.rev, "optim", "pmetric"])
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        workers = {k: start(src, mesh, a.directions, a.chain) for k, src in (("old", Path(tmp)), ("new", ROOT))}
-        for w in workers.values():
-            assert w.stdout.readline().strip() == "ready"
-        res = {k: [] for k in workers}
-        for r in range(a.rounds):
-            sizes = [float(x) for x in a.sizes.split(",")]
-            size = sizes[r % len(sizes)]
-            for k in (("old", "new") if r % 4 < 2 else ("new", "old")):
-                workers[k].stdin.write(f"{size}\n")
-                workers[k].stdin.flush()
-                res[k].append(json.loads(workers[k].stdout.readline()))
-        for w in workers.values():
-            w.stdin.close()
-            w.wait()
+    sizes = [float(x) for x in a.sizes.split(",")]
+    calls = [(sizes[r % len(sizes)], "old" if r % 4 < 2 else "new") for r in range(a.rounds)]
+    res = old_and_new(ROOT, a.rev, WORKER, [mesh, a.directions, "1" if a.chain else "0"], calls)
     same = all(o["hash"] == n["hash"] for o, n in zip(res["old"], res["new"]))
     wall = {k: np.array([x["wall"] for x in v]) * 1e3 for k, v in res.items()}
     load = os.getloadavg()

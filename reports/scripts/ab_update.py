@@ -12,15 +12,14 @@ budget); ``--moving``: each view carries the previous frame of a 60 deg/s orbit 
 process CPU ms per update (median over views and rounds) of each and the paired ratio.
 """
 import argparse
-import json
 import os
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _workers import old_and_new  # (this folder: the scripts run as files)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -60,13 +59,6 @@ for line in sys.stdin:
 """
 
 
-def start(src: Path, mesh: str, moving: bool):
-    env = dict(os.environ, PYTHONPATH=str(src))
-    p = subprocess.Popen([sys.executable, "-c", WORKER, mesh, "1" if moving else "0"], cwd=src, env=env,
-                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    return p
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("rev", nargs="?", default="56f8ac8")
@@ -77,23 +69,8 @@ def main():
     mesh = a.mesh
     if mesh == "turbine":
         mesh = str(ROOT.parent / "shared" / "data" / "meshes" / "turbineblade-subdiv-796k.ply")
-    with tempfile.TemporaryDirectory() as tmp:
-        old_src = Path(tmp)
-        archive = subprocess.check_output(["git", "-C", str(ROOT), "archive", a.rev, "optim", "pmetric"])
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        workers = {"old": start(old_src, mesh, a.moving), "new": start(ROOT, mesh, a.moving)}
-        for w in workers.values():
-            assert w.stdout.readline().strip() == "ready"
-        res = {k: [] for k in workers}
-        for r in range(a.rounds):
-            for i in range(8):
-                for k in (("old", "new") if (r + i) % 2 == 0 else ("new", "old")):
-                    workers[k].stdin.write(f"{i}\n")
-                    workers[k].stdin.flush()
-                    res[k].append(json.loads(workers[k].stdout.readline()))
-        for w in workers.values():
-            w.stdin.close()
-            w.wait()
+    calls = [(i, "old" if (r + i) % 2 == 0 else "new") for r in range(a.rounds) for i in range(8)]
+    res = old_and_new(ROOT, a.rev, WORKER, [mesh, "1" if a.moving else "0"], calls)
     same = all(o["hash"] == n["hash"] for o, n in zip(res["old"], res["new"]))
     wall = {k: np.array([x["wall"] for x in v]) * 1e3 for k, v in res.items()}
     cpu = {k: np.array([x["cpu"] for x in v]) * 1e3 for k, v in res.items()}
